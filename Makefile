@@ -1,0 +1,27 @@
+# The two commands that do everything on a fresh machine:
+#   make render   renders the sample scene to out/ (creates .venv on first use)
+#   make test     runs the whole test suite
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+
+.PHONY: render test bench clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[dev]'
+	touch $(STAMP)
+
+render: $(STAMP)
+	$(PY) -m lazyvis_addon.core --demo floating_boxes -o out/floating_boxes.exr --png out/floating_boxes.png
+
+test: $(STAMP)
+	$(PY) -m pytest -q
+
+bench: $(STAMP)
+	$(PY) bench/bench_core.py
+
+clean:
+	rm -rf out build dist

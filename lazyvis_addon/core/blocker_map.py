@@ -1,0 +1,331 @@
+"""Pass 1: the blocker map (paper section 4.1).
+
+Shadow rays find blocker–light pairs; each pair is flood-filled through the image while the blocker,
+seen from each pixel's visible point, overlaps the light. The fill is a wavefront over all active pairs
+at once: every iteration tests the whole frontier in array batches and grows it by one ring of
+neighbours, with a packed bitset per pixel remembering which pairs a pixel has already been tested for.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import rng
+from .geometry import LightFrames, PLANE_EPS, blocker_in_front_of_light, cones_overlap, receiver_light
+from .progress import Progress
+from .sampling import sample_polygon_solid_angle
+from .settings import Settings
+from .surface import SurfacePoints
+
+# Pair tests per array batch: bounds the temporaries (about 2 kB per test).
+TEST_BATCH = 65536
+
+_NEIGHBOURS_4 = np.array([(0, -1), (0, 1), (-1, 0), (1, 0)])
+_NEIGHBOURS_8 = np.array([(0, -1), (0, 1), (-1, 0), (1, 0), (-1, -1), (-1, 1), (1, -1), (1, 1)])
+
+
+@dataclass
+class BlockerMap:
+    """Blocker–light pairs stored per pixel, sorted by (pixel, light).
+
+    Attributes
+    ----------
+    pixel : (E,) int64       window-local pixel index (row-major, row 0 = top).
+    light : (E,) int64
+    triangle : (E,) int64    blocker triangle.
+    umbra : (N, L) bool      the light is hidden at this pixel (one blocker surrounds it).
+    stats : dict             rays cast, seeds, pairs, tests, fill iterations.
+    """
+
+    pixel: np.ndarray
+    light: np.ndarray
+    triangle: np.ndarray
+    umbra: np.ndarray
+    stats: dict = field(default_factory=dict)
+
+    def count_per_pixel(self, n_pixels: int) -> np.ndarray:
+        return np.bincount(self.pixel, minlength=n_pixels).astype(np.int32)
+
+    def crop(self, inner: np.ndarray, n_pixels: int) -> "BlockerMap":
+        """The map restricted to the pixels ``inner`` (ascending indices), renumbered 0 .. len(inner)-1."""
+        renumber = np.full(n_pixels, -1, np.int64)
+        renumber[inner] = np.arange(len(inner))
+        pixel = renumber[self.pixel]
+        keep = pixel >= 0
+        return BlockerMap(pixel[keep], self.light[keep], self.triangle[keep], self.umbra[inner], dict(self.stats))
+
+    @classmethod
+    def from_entries(cls, pixel, light, triangle, umbra, stats=None) -> "BlockerMap":
+        """Sort and de-duplicate (pixel, light, triangle) entries."""
+        pixel, light, triangle = (np.asarray(a, dtype=np.int64) for a in (pixel, light, triangle))
+        n_lights = umbra.shape[1]
+        n_tri = int(triangle.max()) + 1 if len(triangle) else 1
+        key = (pixel * n_lights + light) * n_tri + triangle
+        key = np.unique(key)
+        triangle = key % n_tri
+        pixel_light = key // n_tri
+        return cls(pixel_light // n_lights, pixel_light % n_lights, triangle, umbra, dict(stats or {}))
+
+
+def test_pairs(surface: SurfacePoints, frames: LightFrames, triangles: np.ndarray, pixel: np.ndarray,
+               triangle: np.ndarray, light: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Does blocker ``triangle`` overlap ``light`` seen from the visible point of ``pixel``?
+
+    Parameters
+    ----------
+    surface : SurfacePoints of the whole window; pixel, triangle, light : (N,) int64.
+
+    Returns
+    -------
+    overlap : (N,) bool   conservative (touching counts).
+    umbra : (N,) bool     the blocker alone hides the whole (horizon-clipped) light.
+    """
+    overlap = np.zeros(len(pixel), bool)
+    umbra = np.zeros(len(pixel), bool)
+    for start in range(0, len(pixel), TEST_BATCH):  # batches of tests, not single tests
+        rows = slice(start, start + TEST_BATCH)
+        overlap[rows], umbra[rows] = _test_batch(surface, frames, triangles, pixel[rows], triangle[rows], light[rows])
+    return overlap, umbra
+
+
+def _test_batch(surface, frames, triangles, pixel, triangle, light):
+    x = surface.position[pixel]
+    normal = surface.geometric_normal[pixel]
+    corners = triangles[triangle]
+    rel = corners - x[:, None]
+    # The receiver's own triangle and anything on or behind its tangent plane cannot shadow it.
+    heights = np.einsum("nvk,nk->nv", rel, normal)
+    lengths = np.linalg.norm(rel, axis=2)
+    candidate = (triangle != surface.index_triangle[pixel]) & (heights > 1e-7 * lengths).any(axis=1)
+    overlap = np.zeros(len(pixel), bool)
+    umbra = np.zeros(len(pixel), bool)
+    if not candidate.any():
+        return overlap, umbra
+    idx = np.flatnonzero(candidate)
+    setup = receiver_light(x[idx], normal[idx], surface.shading_normal[pixel[idx]], light[idx], frames)
+    lit = setup.count >= 3
+    idx, setup_rows = idx[lit], np.flatnonzero(lit)
+    if len(idx) == 0:
+        return overlap, umbra
+    light_dirs = setup.directions(frames, setup.uv[setup_rows], setup_rows)
+    polygon, count = blocker_in_front_of_light(x[idx], corners[idx], frames.origin[light[idx]],
+                                               frames.normal[light[idx]], setup.side[setup_rows])
+    hit, surround = cones_overlap(polygon, count, light_dirs, setup.count[setup_rows])
+    overlap[idx] = hit
+    # Surround alone is not enough when the blocker was cut by the light's plane: only a whole
+    # triangle in front of the light hides every ray of its cone before the light.
+    umbra[idx] = surround & (count == 3) & _wholly_in_front(corners[idx], frames, light[idx], setup.side[setup_rows])
+    return overlap, umbra
+
+
+def _wholly_in_front(corners, frames, light, side):
+    height = side[:, None] * np.einsum("nvk,nk->nv", corners - frames.origin[light][:, None], frames.normal[light])
+    scale = np.abs(corners).max(axis=(1, 2)) + 1.0
+    return (height > PLANE_EPS * scale[:, None]).all(axis=1)
+
+
+def detect_seeds(surface: SurfacePoints, frames: LightFrames, tracer, settings: Settings,
+                 pixel_global: np.ndarray, progress: Progress) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Shadow rays: S per pixel and light, stratified over the light's visible solid angle.
+
+    Returns
+    -------
+    pixel, triangle, light : (P,) int64   unique seed triples (window-local pixel).
+    rays : int                            shadow rays cast.
+    """
+    n_lights = len(frames)
+    samples = settings.shadow_rays
+    found_pixel, found_triangle, found_light = [], [], []
+    rays = 0
+    hit_pixels = np.flatnonzero(surface.hit)
+    batch = max(1, settings.pixel_batch // max(1, samples * n_lights) * 4)
+    progress.begin_stage("Blocker detection", len(hit_pixels))
+    for start in range(0, len(hit_pixels), batch):  # batches of pixels
+        pixels = hit_pixels[start:start + batch]
+        pix = np.repeat(pixels, n_lights)
+        lig = np.tile(np.arange(n_lights), len(pixels))
+        setup = receiver_light(surface.position[pix], surface.geometric_normal[pix], surface.shading_normal[pix],
+                               lig, frames)
+        lit = np.flatnonzero(setup.count >= 3)
+        if len(lit):
+            sample = np.tile(np.arange(samples), len(lit))
+            rows = np.repeat(lit, samples)
+            pix_s, lig_s = pix[rows], lig[rows]
+            u = rng.uniforms(settings.seed, settings.frame, rng.STREAM_SHADOW_RAYS, pixel_global[pix_s],
+                             lig_s * samples + sample, 2)
+            u = rng.stratified_2d(u, sample, samples)
+            polygons = setup.directions(frames, setup.uv[rows], rows)
+            direction, pdf, _ = sample_polygon_solid_angle(polygons, setup.count[rows], u)
+            normal = surface.geometric_normal[pix_s]
+            origin = surface.position[pix_s] + surface.offset[pix_s, None] * normal
+            # Distance to the light's plane along the ray; stop a little short so the light's own
+            # surroundings (a ceiling it is set into) are not reported.
+            toward = -setup.side[rows] * np.einsum("nk,nk->n", direction, frames.normal[lig_s])
+            height = setup.side[rows] * np.einsum("nk,nk->n", origin - frames.origin[lig_s], frames.normal[lig_s])
+            good = (pdf > 0) & (toward > 0) & (height > 0)
+            tfar = np.where(good, height / np.where(good, toward, 1.0), 0.0) * (1.0 - 1e-6)
+            hits = tracer.intersect(origin[good], direction[good], tfar[good])
+            rays += int(good.sum())
+            blocked = (hits.index_triangle >= 0) & (hits.index_triangle != surface.index_triangle[pix_s[good]])
+            found_pixel.append(pix_s[good][blocked])
+            found_triangle.append(hits.index_triangle[blocked])
+            found_light.append(lig_s[good][blocked])
+        progress.advance(len(pixels))
+    progress.end_stage()
+    if not found_pixel:
+        empty = np.zeros(0, np.int64)
+        return empty, empty, empty, rays
+    pixel = np.concatenate(found_pixel)
+    triangle = np.concatenate(found_triangle).astype(np.int64)
+    light = np.concatenate(found_light)
+    n_tri = int(triangle.max()) + 1 if len(triangle) else 1
+    key = np.unique((pixel * n_lights + light) * n_tri + triangle)
+    return key // n_tri // n_lights, key % n_tri, key // n_tri % n_lights, rays
+
+
+def flood_fill(surface: SurfacePoints, frames: LightFrames, triangles: np.ndarray, shape: tuple[int, int],
+               seed_pixel: np.ndarray, seed_triangle: np.ndarray, seed_light: np.ndarray, settings: Settings,
+               progress: Progress) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
+    """Grow every seeded pair through the image while its blocker overlaps its light.
+
+    Parameters
+    ----------
+    shape : (H, W) of the window; seed_* : (P,) int64 seed triples.
+
+    Returns
+    -------
+    pixel, triangle, light : (E,) int64   stored entries.
+    umbra : (N, L) bool
+    stats : dict                          tests, iterations, pairs.
+    """
+    height, width = shape
+    n_pixels = height * width
+    n_lights = len(frames)
+    umbra = np.zeros((n_pixels, n_lights), bool)
+    stats = {"fill_tests": 0, "fill_iterations": 0, "pairs": 0}
+    if len(seed_pixel) == 0:
+        empty = np.zeros(0, np.int64)
+        return empty, empty, empty, umbra, stats
+    pair_key, seed_pair = np.unique(seed_triangle * n_lights + seed_light, return_inverse=True)
+    pair_triangle, pair_light = pair_key // n_lights, pair_key % n_lights
+    stats["pairs"] = len(pair_key)
+    offsets = _NEIGHBOURS_8 if settings.connectivity == 8 else _NEIGHBOURS_4
+
+    # Visited bits: one bit per (pixel, pair) in a chunk of pairs; chunk size from the memory budget.
+    budget_bytes = settings.memory_budget_mb * 2 ** 20 * 0.25
+    pairs_per_chunk = int(budget_bytes // max(n_pixels, 1)) * 8
+    if pairs_per_chunk < 8:
+        raise MemoryError(f"memory budget of {settings.memory_budget_mb:g} MB is too small for the "
+                          f"{width} x {height} blocker map; raise it or render in tiles")
+    stored = []
+    progress.begin_stage("Flood fill", len(pair_key))
+    for chunk_start in range(0, len(pair_key), pairs_per_chunk):  # chunks of pairs, usually one
+        chunk_end = min(chunk_start + pairs_per_chunk, len(pair_key))
+        in_chunk = (seed_pair >= chunk_start) & (seed_pair < chunk_end)
+        visited = np.zeros(((chunk_end - chunk_start + 7) // 8, n_pixels), np.uint8)
+        frontier_pixel = seed_pixel[in_chunk]
+        frontier_pair = seed_pair[in_chunk] - chunk_start
+        _mark(visited, frontier_pair, frontier_pixel)
+        while len(frontier_pixel):
+            stats["fill_iterations"] += 1
+            stats["fill_tests"] += len(frontier_pixel)
+            pair = frontier_pair + chunk_start
+            ok, hidden = test_pairs(surface, frames, triangles, frontier_pixel, pair_triangle[pair], pair_light[pair])
+            stored.append(np.stack([frontier_pixel[ok], pair[ok]]))
+            umbra[frontier_pixel[hidden], pair_light[pair[hidden]]] = True
+            frontier_pixel, frontier_pair = _next_ring(frontier_pixel[ok], frontier_pair[ok], offsets, height, width,
+                                                       surface.hit, visited)
+            progress.check_cancel()
+        progress.advance(chunk_end - chunk_start)
+    progress.end_stage()
+    entries = np.concatenate(stored, axis=1)
+    pair = entries[1]
+    return entries[0], pair_triangle[pair], pair_light[pair], umbra, stats
+
+
+def _mark(visited: np.ndarray, pair: np.ndarray, pixel: np.ndarray) -> None:
+    np.bitwise_or.at(visited, (pair >> 3, pixel), (1 << (pair & 7)).astype(np.uint8))
+
+
+def _next_ring(pixel, pair, offsets, height, width, hit, visited):
+    """Untested neighbours (8- or 4-connected) of the pixels where a pair was just stored."""
+    if len(pixel) == 0:
+        return pixel, pair
+    row, col = np.divmod(pixel, width)
+    rows = row[:, None] + offsets[None, :, 0]
+    cols = col[:, None] + offsets[None, :, 1]
+    inside = (rows >= 0) & (rows < height) & (cols >= 0) & (cols < width)
+    neighbour = (rows * width + cols)[inside]
+    pair_n = np.broadcast_to(pair[:, None], rows.shape)[inside]
+    keep = hit[neighbour]
+    neighbour, pair_n = neighbour[keep], pair_n[keep]
+    seen = (visited[pair_n >> 3, neighbour] >> (pair_n & 7).astype(np.uint8)) & 1
+    neighbour, pair_n = neighbour[seen == 0], pair_n[seen == 0]
+    key = np.unique(pair_n * (height * width) + neighbour)
+    pair_n, neighbour = np.divmod(key, height * width)
+    _mark(visited, pair_n, neighbour)
+    return neighbour, pair_n
+
+
+def build_blocker_map(surface: SurfacePoints, frames: LightFrames, triangles: np.ndarray, tracer,
+                      shape: tuple[int, int], pixel_global: np.ndarray, settings: Settings,
+                      progress: Progress) -> BlockerMap:
+    """Pass 1 for the lazy integrators: detection, flood fill, umbra (paper 4.1 and 5)."""
+    seed_pixel, seed_triangle, seed_light, rays = detect_seeds(surface, frames, tracer, settings, pixel_global,
+                                                               progress)
+    pixel, triangle, light, umbra, stats = flood_fill(surface, frames, triangles, shape, seed_pixel, seed_triangle,
+                                                      seed_light, settings, progress)
+    if not settings.umbra_detection:
+        umbra[:] = False
+    stats.update(shadow_rays=rays, seeds=len(seed_pixel))
+    return BlockerMap.from_entries(pixel, light, triangle, umbra, stats)
+
+
+def reference_blocker_map(surface: SurfacePoints, frames: LightFrames, triangles: np.ndarray,
+                          shape: tuple[int, int], settings: Settings, progress: Progress) -> BlockerMap:
+    """Every triangle is a candidate blocker: the exact (and slow) oracle.
+
+    Pixels are taken in tiles; a triangle is tested against a tile only when its bounding box meets the
+    box around the tile's visible points and the light (a segment from any of those points to the light
+    lies in that box), which keeps the test exact while skipping most pairs.
+    """
+    height, width = shape
+    n_pixels = height * width
+    n_lights = len(frames)
+    umbra = np.zeros((n_pixels, n_lights), bool)
+    tri_low, tri_high = triangles.min(axis=1), triangles.max(axis=1)
+    tile = 16
+    tiles = [(r, c) for r in range(0, height, tile) for c in range(0, width, tile)]
+    stored = []
+    tests = 0
+    progress.begin_stage("Reference blockers", len(tiles))
+    for r, c in tiles:  # tiles of pixels
+        rows, cols = np.mgrid[r:min(r + tile, height), c:min(c + tile, width)]
+        pixels = (rows * width + cols).reshape(-1)
+        pixels = pixels[surface.hit[pixels]]
+        if len(pixels) == 0 or len(triangles) == 0:
+            progress.advance()
+            continue
+        points = surface.position[pixels]
+        for light in range(n_lights):  # lights: a handful
+            corners = frames.vertices[light, :frames.vertex_count[light]]
+            low = np.minimum(points.min(axis=0), corners.min(axis=0))
+            high = np.maximum(points.max(axis=0), corners.max(axis=0))
+            candidates = np.flatnonzero((tri_low <= high).all(axis=1) & (tri_high >= low).all(axis=1))
+            if len(candidates) == 0:
+                continue
+            pix = np.repeat(pixels, len(candidates))
+            tri = np.tile(candidates, len(pixels))
+            lig = np.full(len(pix), light)
+            ok, hidden = test_pairs(surface, frames, triangles, pix, tri, lig)
+            tests += len(pix)
+            stored.append(np.stack([pix[ok], tri[ok], lig[ok]]))
+            umbra[pix[hidden], light] = True
+        progress.advance()
+    progress.end_stage()
+    entries = np.concatenate(stored, axis=1) if stored else np.zeros((3, 0), np.int64)
+    if not settings.umbra_detection:
+        umbra[:] = False
+    return BlockerMap.from_entries(entries[0], entries[2], entries[1], umbra, {"reference_tests": tests})

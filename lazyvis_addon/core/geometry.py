@@ -1,0 +1,363 @@
+"""Polygon geometry shared by both passes: light frames, convex clipping, blocker cones, Lambert's formula.
+
+Everything is batched: N independent problems at once, polygons padded to K vertices by repeating their
+last vertex (so a zero-length closing edge contributes nothing to edge sums) with an explicit count.
+
+Visibility is reasoned about with *cones from the receiver*: a blocker polygon B occludes the part of a
+light seen from x whose directions lie inside the cone from x through B, provided B lies in front of the
+light. The cone's faces are planes through x, one per edge of B; a plane through x meets the light's plane
+in a line, so clipping a light by a blocker never needs the blocker's projection (which runs off to
+infinity as a blocker vertex approaches the plane through x parallel to the light).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .scene import Lights
+
+# Relative tolerance for "on the plane" decisions (angles in radians, distances over lengths).
+PLANE_EPS = 1e-9
+
+
+@dataclass
+class LightFrames:
+    """Orthonormal frames of the lights, for 2-D work in each light's plane.
+
+    Attributes
+    ----------
+    origin : (L, 3) float64      vertex 0 of each light.
+    tangent, bitangent : (L, 3)  in-plane axes; (tangent, bitangent, normal) is right-handed.
+    normal : (L, 3) float64      unit emitting normal.
+    uv : (L, V, 2) float64       vertices in (tangent, bitangent) coordinates, counter-clockwise.
+    vertices : (L, V, 3)         world-space vertices (padded).
+    vertex_count : (L,) int64
+    radiance : (L, 3) float64
+    two_sided : (L,) bool
+    area : (L,) float64          m^2.
+    """
+
+    origin: np.ndarray
+    tangent: np.ndarray
+    bitangent: np.ndarray
+    normal: np.ndarray
+    uv: np.ndarray
+    vertices: np.ndarray
+    vertex_count: np.ndarray
+    radiance: np.ndarray
+    two_sided: np.ndarray
+    area: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.vertex_count)
+
+
+def light_frames(lights: Lights) -> LightFrames:
+    """Frames of validated lights (see ``Scene.validated``)."""
+    vertices = np.asarray(lights.vertices, dtype=np.float64)
+    count = len(vertices)
+    newell = np.zeros((count, 3))
+    for k in range(vertices.shape[1]):  # polygon vertices: a handful
+        newell += np.cross(vertices[:, k], vertices[:, (k + 1) % vertices.shape[1]])
+    area = 0.5 * np.linalg.norm(newell, axis=1)
+    normal = newell / np.maximum(2.0 * area, 1e-300)[:, None]
+    origin = vertices[:, 0]
+    tangent = vertices[:, 1] - origin
+    tangent -= normal * np.einsum("lk,lk->l", tangent, normal)[:, None]
+    tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-300)
+    bitangent = np.cross(normal, tangent)
+    rel = vertices - origin[:, None]
+    uv = np.stack([np.einsum("lvk,lk->lv", rel, tangent), np.einsum("lvk,lk->lv", rel, bitangent)], axis=-1)
+    return LightFrames(origin, tangent, bitangent, normal, uv, vertices, np.asarray(lights.vertex_count),
+                       np.asarray(lights.radiance, dtype=np.float64), np.asarray(lights.two_sided, bool), area)
+
+
+# ------------------------------------------------------------------------------------------------------
+# Convex clipping
+# ------------------------------------------------------------------------------------------------------
+
+def clip_convex(points: np.ndarray, count: np.ndarray, side: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Keep the part of each convex polygon where the affine function ``side`` is >= 0 (Sutherland–Hodgman).
+
+    Parameters
+    ----------
+    points : (N, K, D) float64
+        Padded polygons (D = 2 or 3).
+    count : (N,) int64
+        Real vertex counts (0 for an empty polygon).
+    side : (N, K) float64
+        The affine function's value at each vertex (any value at padding).
+
+    Returns
+    -------
+    clipped : (N, K + 1, D) float64, padded by repeating the last vertex.
+    clipped_count : (N,) int64, 0 where nothing (or less than a triangle) remains.
+    """
+    n, k, dims = points.shape
+    index = np.arange(k)
+    valid = index[None, :] < count[:, None]
+    nxt = (index[None, :] + 1) % np.maximum(count[:, None], 1)
+    side_next = np.take_along_axis(side, nxt, axis=1)
+    points_next = np.take_along_axis(points, nxt[:, :, None], axis=1)
+    inside = side >= 0.0
+    inside_next = side_next >= 0.0
+    emit_vertex = inside & valid
+    emit_cross = (inside != inside_next) & valid
+    denom = side - side_next
+    frac = np.divide(side, denom, out=np.zeros_like(side), where=emit_cross)
+    cross = points + frac[:, :, None] * (points_next - points)
+
+    emitted = emit_vertex.astype(np.int64) + emit_cross
+    start = np.cumsum(emitted, axis=1) - emitted
+    total = emitted.sum(axis=1)
+    out = np.empty((n, k + 1, dims))
+    rows = np.broadcast_to(np.arange(n)[:, None], (n, k))
+    out[rows[emit_vertex], start[emit_vertex]] = points[emit_vertex]
+    cross_slot = start + emit_vertex
+    out[rows[emit_cross], cross_slot[emit_cross]] = cross[emit_cross]
+    _pad_with_last(out, total)
+    total = np.where(total >= 3, total, 0)
+    return out, total
+
+
+def _pad_with_last(points: np.ndarray, count: np.ndarray) -> None:
+    """In place: slots at and after ``count`` repeat the last real vertex (vertex 0 when count is 0)."""
+    k = points.shape[1]
+    last = np.clip(count - 1, 0, k - 1)
+    pad = np.arange(k)[None, :] >= count[:, None]
+    if pad.any():
+        fill = points[np.arange(len(points)), last]
+        points[pad] = np.broadcast_to(fill[:, None, :], points.shape)[pad]
+
+
+def polygon_area_2d(uv: np.ndarray) -> np.ndarray:
+    """Signed area of padded 2-D polygons (N, K, 2) -> (N,), positive when counter-clockwise."""
+    nxt = np.roll(uv, -1, axis=1)
+    return 0.5 * np.sum(uv[..., 0] * nxt[..., 1] - nxt[..., 0] * uv[..., 1], axis=1)
+
+
+def trim(points: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """Drop trailing padding columns that no polygon uses (keeps at least 3)."""
+    width = max(int(count.max()) if len(count) else 3, 3)
+    return points[:, :width]
+
+
+# ------------------------------------------------------------------------------------------------------
+# Blocker cones
+# ------------------------------------------------------------------------------------------------------
+
+def blocker_in_front_of_light(receiver: np.ndarray, triangle: np.ndarray, light_origin: np.ndarray,
+                              light_normal: np.ndarray, light_side: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The part of each blocker triangle strictly in front of its light, relative to the receiver.
+
+    Parameters
+    ----------
+    receiver : (N, 3) float64        visible points x.
+    triangle : (N, 3, 3) float64     blocker vertices (world space).
+    light_origin, light_normal : (N, 3)
+    light_side : (N,) float64        +1 when x is on the light's normal side, -1 on its back (two-sided).
+
+    Returns
+    -------
+    polygon : (N, 4, 3) float64      the blocker clipped to the light's x side, minus x (padded).
+    count : (N,) int64               0 when no part of the blocker lies in front of the light.
+    """
+    height = light_side[:, None] * np.einsum("nvk,nk->nv", triangle - light_origin[:, None], light_normal)
+    scale = np.max(np.abs(triangle - receiver[:, None]), axis=(1, 2)) + np.abs(receiver).max(axis=1)
+    # A vertex on the light's plane (a light set into a ceiling) blocks nothing.
+    side = height - PLANE_EPS * scale[:, None]
+    relative = triangle - receiver[:, None]
+    count = np.full(len(triangle), 3, dtype=np.int64)
+    polygon = np.concatenate([relative, relative[:, 2:3]], axis=1)
+    straddle = (side < 0).any(axis=1)
+    if straddle.any():
+        clipped, clipped_count = clip_convex(relative[straddle], count[straddle], side[straddle])
+        polygon[straddle] = clipped
+        count[straddle] = clipped_count
+    return polygon, count
+
+
+def cone_planes(polygon: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Inward unit normals of the planes through the origin and each edge of a convex polygon.
+
+    Parameters
+    ----------
+    polygon : (N, K, 3) float64   polygon vertices relative to the cone's apex (padded).
+    count : (N,) int64
+
+    Returns
+    -------
+    planes : (N, K, 3) float64    unit normals; a direction w is inside the cone when planes . w > 0
+                                  for every valid plane.
+    valid : (N, K) bool           False for padding, degenerate edges and degenerate cones (apex in the
+                                  polygon's plane: no solid angle).
+    """
+    n, k, _ = polygon.shape
+    nxt = np.roll(polygon, -1, axis=1)
+    edge_normal = np.cross(polygon, nxt)
+    # Orientation: the polygon's (Newell) normal against the apex decides which side is inside.
+    newell = edge_normal.sum(axis=1)
+    lengths = np.linalg.norm(polygon, axis=2)
+    orient = np.einsum("nk,nk->n", newell, polygon[:, 0])
+    size = lengths.max(axis=1)
+    nondegenerate = np.abs(orient) > 1e-12 * size ** 3
+    sign = np.where(orient > 0, 1.0, -1.0)  # counter-clockwise about the apex-to-polygon axis -> inside is +
+    norm = np.linalg.norm(edge_normal, axis=2)
+    # Padding repeats the last vertex, so the real edges are 0 .. count-2 and the closing edge K-1.
+    index = np.arange(k)[None, :]
+    real_edge = (index <= count[:, None] - 2) | (index == k - 1)
+    valid = real_edge & (norm > 1e-14 * (lengths * np.roll(lengths, -1, axis=1)))
+    valid &= nondegenerate[:, None] & (count[:, None] >= 3)
+    planes = edge_normal * (sign[:, None] / np.maximum(norm, 1e-300))[:, :, None]
+    return planes, valid
+
+
+def cones_overlap(blocker: np.ndarray, blocker_count: np.ndarray, light: np.ndarray, light_count: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Do the cones from the origin through a blocker and through a light intersect? Does the blocker's
+    cone contain the light's?
+
+    Separating-axis test on the sphere: two convex cones with a common apex are disjoint exactly when a
+    face plane of one of them has the whole other cone on its outside.
+
+    Parameters
+    ----------
+    blocker : (N, Kb, 3), blocker_count : (N,)   blocker polygon relative to the apex.
+    light : (N, Kl, 3), light_count : (N,)       light polygon relative to the apex.
+
+    Returns
+    -------
+    overlap : (N,) bool   conservative: touching cones count as overlapping.
+    surround : (N,) bool  the light's cone lies strictly inside the blocker's.
+    """
+    b_planes, b_valid = cone_planes(blocker, blocker_count)
+    l_planes, l_valid = cone_planes(light, light_count)
+    light_dir = light / np.maximum(np.linalg.norm(light, axis=2, keepdims=True), 1e-300)
+    blocker_dir = blocker / np.maximum(np.linalg.norm(blocker, axis=2, keepdims=True), 1e-300)
+    # (N, Kb, Kl): blocker plane i against light vertex j (padding repeats real vertices: harmless).
+    b_vs_l = np.einsum("nik,njk->nij", b_planes, light_dir)
+    l_vs_b = np.einsum("njk,nik->nji", l_planes, blocker_dir)
+    tol = 1e-12
+    separated = ((b_vs_l.max(axis=2) < -tol) & b_valid).any(axis=1)
+    separated |= ((l_vs_b.max(axis=2) < -tol) & l_valid).any(axis=1)
+    has_cone = b_valid.any(axis=1) & (blocker_count >= 3)
+    overlap = has_cone & ~separated
+    inside_all = np.where(b_valid[:, :, None], b_vs_l > 1e-9, True).all(axis=(1, 2))
+    surround = overlap & inside_all & (b_valid.sum(axis=1) >= 3)
+    return overlap, surround
+
+
+def plane_lines(planes: np.ndarray, receiver_in_light: np.ndarray, frames_index: np.ndarray,
+                frames: LightFrames) -> np.ndarray:
+    """Where planes through the receiver cut the light's plane, as lines in the light's (u, v) coordinates.
+
+    Parameters
+    ----------
+    planes : (N, K, 3) float64       plane normals through the receiver (world space).
+    receiver_in_light : (N, 3)       x - light origin, in world space.
+    frames_index : (N,) int64        which light.
+
+    Returns
+    -------
+    lines : (N, K, 3) float64        (a, b, c) with a u + b v + c = planes . (y - x) for y = origin + u t + v b.
+    """
+    tangent = frames.tangent[frames_index]
+    bitangent = frames.bitangent[frames_index]
+    a = np.einsum("nik,nk->ni", planes, tangent)
+    b = np.einsum("nik,nk->ni", planes, bitangent)
+    c = -np.einsum("nik,nk->ni", planes, receiver_in_light)
+    return np.stack([a, b, c], axis=-1)
+
+
+# ------------------------------------------------------------------------------------------------------
+# Lambert's polygon formula
+# ------------------------------------------------------------------------------------------------------
+
+def projected_solid_angle(directions: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """Integral of (normal . w) over the solid angle of each polygon (the paper's Eq. 3 without L / 2).
+
+    Parameters
+    ----------
+    directions : (N, K, 3) float64   polygon vertices relative to the receiver, padded by repeating the
+                                     last vertex, counter-clockwise about the axis from the receiver
+                                     towards the polygon (any winding works: the sign is fixed by taking
+                                     the polygon's side of ``normal``). Must lie in the upper hemisphere.
+    normal : (N, 3) float64          unit receiver normal.
+
+    Returns
+    -------
+    (N,) float64, steradians, >= 0: irradiance / radiance for a constant-radiance polygon.
+    """
+    unit = directions / np.maximum(np.linalg.norm(directions, axis=2, keepdims=True), 1e-300)
+    nxt = np.roll(unit, -1, axis=1)
+    cross = np.cross(unit, nxt)
+    sin = np.linalg.norm(cross, axis=2)
+    cos = np.einsum("nkd,nkd->nk", unit, nxt)
+    angle = np.arctan2(sin, cos)
+    ratio = np.where(sin > 1e-15, angle / np.maximum(sin, 1e-300), 1.0)
+    total = 0.5 * np.einsum("nkd,nd->n", cross * ratio[:, :, None], normal)
+    return np.abs(total)
+
+
+# ------------------------------------------------------------------------------------------------------
+# Receiver-light setup shared by both passes
+# ------------------------------------------------------------------------------------------------------
+
+@dataclass
+class ReceiverLight:
+    """A batch of (receiver, light) couples: the light as the receiver sees it.
+
+    Attributes
+    ----------
+    light : (N,) int64           light index.
+    uv : (N, K, 2) float64       the light clipped to the receiver's geometric and shading horizons, in the
+                                 light's (u, v) coordinates (padded).
+    count : (N,) int64           its vertex count, 0 when the light contributes nothing (behind the light,
+                                 below the horizon).
+    side : (N,) float64          +1 when the receiver is on the light's normal side, -1 on the back of a
+                                 two-sided light.
+    local : (N, 3) float64       the receiver in the light's frame: (u, v, height above the plane).
+    receiver_in_light : (N, 3)   receiver minus the light's origin (world axes).
+    """
+
+    light: np.ndarray
+    uv: np.ndarray
+    count: np.ndarray
+    side: np.ndarray
+    local: np.ndarray
+    receiver_in_light: np.ndarray
+
+    def directions(self, frames: LightFrames, uv: np.ndarray | None = None, index: np.ndarray | None = None
+                   ) -> np.ndarray:
+        """World-space vectors from the receiver to points (N, K, 2) of the light plane -> (N, K, 3)."""
+        uv = self.uv if uv is None else uv
+        rows = slice(None) if index is None else index
+        light = self.light[rows]
+        local = self.local[rows]
+        du = uv[..., 0] - local[:, None, 0]
+        dv = uv[..., 1] - local[:, None, 1]
+        return (du[..., None] * frames.tangent[light][:, None] + dv[..., None] * frames.bitangent[light][:, None]
+                - local[:, None, 2:3] * frames.normal[light][:, None])
+
+
+def receiver_light(position: np.ndarray, geometric_normal: np.ndarray, shading_normal: np.ndarray,
+                   light: np.ndarray, frames: LightFrames) -> ReceiverLight:
+    """Set up (receiver, light) couples; all inputs (N, ...) with ``light`` (N,) int64."""
+    rel = position - frames.origin[light]
+    height = np.einsum("nk,nk->n", rel, frames.normal[light])
+    side = np.where(frames.two_sided[light] & (height < 0), -1.0, 1.0)
+    scale = np.abs(position).max(axis=1) + np.sqrt(frames.area[light])
+    lit = side * height > PLANE_EPS * scale
+    uv = frames.uv[light].copy()
+    count = np.where(lit, frames.vertex_count[light], 0)
+    for normal in (geometric_normal, shading_normal):  # the two horizons
+        line = plane_lines(normal[:, None, :], rel, light, frames)[:, 0]
+        value = line[:, 0, None] * uv[..., 0] + line[:, 1, None] * uv[..., 1] + line[:, 2, None]
+        if (value < 0).any():
+            uv, count = clip_convex(uv, count, value)
+            uv = trim(uv, count)
+    local = np.stack([np.einsum("nk,nk->n", rel, frames.tangent[light]),
+                      np.einsum("nk,nk->n", rel, frames.bitangent[light]), height], axis=1)
+    return ReceiverLight(light, uv, count, side, local, rel)

@@ -1,0 +1,300 @@
+"""Pass 2: illumination over the visible part of each light (paper sections 3 and 4.2).
+
+For each (pixel, light) couple the light polygon, already clipped to the receiver's horizon, is cut by
+the couple's blockers into convex *visible pieces*: blocker k removes its cone from every piece of its
+couple by successive half-plane splits (a piece minus a convex blocker is at most one piece per blocker
+edge). Round k applies the k-th blocker of every couple at once, so the loop runs over rounds and
+blocker edges while the arrays run over pieces. The pieces are then integrated analytically (Lambert's
+polygon formula) or by Monte Carlo over their solid angle.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import rng
+from .blocker_map import BlockerMap
+from .geometry import (LightFrames, ReceiverLight, blocker_in_front_of_light, clip_convex, cone_planes,
+                       plane_lines, polygon_area_2d, projected_solid_angle, receiver_light, trim)
+from .sampling import sample_polygon_solid_angle, sample_spherical_triangle, spherical_triangle_solid_angle
+from .settings import Settings
+from .surface import SurfacePoints
+
+# Pieces smaller than this fraction of their light's area are dropped: slivers from shared blocker edges.
+SLIVER_FRACTION = 1e-10
+
+
+@dataclass
+class VisiblePieces:
+    """Convex pieces of lights visible from receivers.
+
+    Attributes
+    ----------
+    couples : ReceiverLight      the (pixel, light) couples of the batch (Nc of them).
+    couple_pixel : (Nc,) int64   batch-local pixel of each couple.
+    uv : (M, K, 2) float64       pieces in their light's (u, v) coordinates, padded.
+    count : (M,) int64
+    couple : (M,) int64          couple of each piece.
+    max_rounds : int             most blockers any couple had.
+    """
+
+    couples: ReceiverLight
+    couple_pixel: np.ndarray
+    uv: np.ndarray
+    count: np.ndarray
+    couple: np.ndarray
+    max_rounds: int = 0
+
+
+def couples_for(surface: SurfacePoints, frames: LightFrames, exclude: np.ndarray | None = None
+                ) -> tuple[ReceiverLight, np.ndarray]:
+    """All lit (pixel, light) couples of a batch, ordered by (pixel, light).
+
+    exclude : (N, L) bool or None   couples to leave out (umbra).
+    """
+    mask = np.broadcast_to(surface.hit[:, None], (len(surface), len(frames))).copy()
+    if exclude is not None:
+        mask &= ~exclude
+    pixel, light = np.nonzero(mask)
+    setup = receiver_light(surface.position[pixel], surface.geometric_normal[pixel], surface.shading_normal[pixel],
+                           light, frames)
+    lit = setup.count >= 3
+    keep = np.flatnonzero(lit)
+    setup = ReceiverLight(setup.light[keep], trim(setup.uv[keep], setup.count[keep]), setup.count[keep],
+                          setup.side[keep], setup.local[keep], setup.receiver_in_light[keep])
+    return setup, pixel[keep]
+
+
+def visible_pieces(surface: SurfacePoints, frames: LightFrames, triangles: np.ndarray, blockers: BlockerMap
+                   ) -> VisiblePieces:
+    """Cut every lit couple's light by its blockers.
+
+    Parameters
+    ----------
+    surface : the batch's SurfacePoints (N of them).
+    blockers : BlockerMap whose ``pixel`` is batch-local and whose ``umbra`` is (N, L).
+    """
+    couples, couple_pixel = couples_for(surface, frames, blockers.umbra)
+    n_lights = len(frames)
+    lookup = np.full(len(surface) * n_lights, -1, np.int64)
+    lookup[couple_pixel * n_lights + couples.light] = np.arange(len(couple_pixel))
+    entry_couple = lookup[blockers.pixel * n_lights + blockers.light]
+    keep = entry_couple >= 0
+    entry_couple, entry_triangle = entry_couple[keep], blockers.triangle[keep]
+
+    pieces_uv, pieces_count, pieces_couple = couples.uv.copy(), couples.count.copy(), np.arange(len(couple_pixel))
+    if len(entry_couple) == 0:
+        return VisiblePieces(couples, couple_pixel, pieces_uv, pieces_count, pieces_couple)
+
+    lines, line_valid = _blocker_lines(surface, frames, triangles, couples, couple_pixel, entry_couple, entry_triangle)
+    order = np.argsort(entry_couple, kind="stable")
+    entry_couple, lines, line_valid = entry_couple[order], lines[order], line_valid[order]
+    first = np.searchsorted(entry_couple, np.arange(len(couple_pixel)))
+    rank = np.arange(len(entry_couple)) - first[entry_couple]
+    min_area = SLIVER_FRACTION * frames.area[couples.light]
+
+    rounds = int(rank.max()) + 1
+    for k in range(rounds):  # rounds: the k-th blocker of every couple at once
+        this = np.flatnonzero(rank == k)
+        entry_of_couple = np.full(len(couple_pixel), -1, np.int64)
+        entry_of_couple[entry_couple[this]] = this
+        entry = entry_of_couple[pieces_couple]
+        affected = np.flatnonzero(entry >= 0)
+        if len(affected) == 0:
+            continue
+        new_uv, new_count, new_couple, drop = _subtract_blocker(
+            pieces_uv[affected], pieces_count[affected], pieces_couple[affected],
+            lines[entry[affected]], line_valid[entry[affected]], min_area)
+        keep_piece = np.ones(len(pieces_count), bool)
+        keep_piece[affected[drop]] = False
+        pieces_uv, pieces_count, pieces_couple = _concat_pieces(
+            (pieces_uv[keep_piece], pieces_count[keep_piece], pieces_couple[keep_piece]),
+            (new_uv, new_count, new_couple))
+    return VisiblePieces(couples, couple_pixel, pieces_uv, pieces_count, pieces_couple, rounds)
+
+
+def _blocker_lines(surface, frames, triangles, couples, couple_pixel, entry_couple, entry_triangle):
+    """Each blocker's cone faces as lines in its light's plane: (E, 4, 3) lines and (E, 4) validity."""
+    pixel = couple_pixel[entry_couple]
+    light = couples.light[entry_couple]
+    x = surface.position[pixel]
+    polygon, count = blocker_in_front_of_light(x, triangles[entry_triangle], frames.origin[light],
+                                               frames.normal[light], couples.side[entry_couple])
+    planes, valid = cone_planes(polygon, count)
+    lines = plane_lines(planes, couples.receiver_in_light[entry_couple], light, frames)
+    return lines, valid
+
+
+def _side(lines: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Line values at polygon vertices: lines (M, 3), uv (M, K, 2) -> (M, K)."""
+    return lines[:, 0, None] * uv[..., 0] + lines[:, 1, None] * uv[..., 1] + lines[:, 2, None]
+
+
+def _subtract_blocker(uv, count, couple, lines, valid, min_area):
+    """Remove one blocker's cone from each piece.
+
+    Parameters
+    ----------
+    uv : (M, K, 2), count : (M,), couple : (M,)   the pieces the blocker applies to.
+    lines : (M, E, 3), valid : (M, E)             the blocker's cone faces (inside: value > 0).
+    min_area : (Nc,)                              sliver threshold per couple.
+
+    Returns
+    -------
+    new_uv, new_count, new_couple : pieces replacing the ones marked in ``drop``.
+    drop : (M,) bool                              pieces that the blocker touched (replaced or removed).
+    """
+    n_edges = lines.shape[1]
+    real_vertex = np.arange(uv.shape[1])[None, :] < count[:, None]
+    value = np.stack([_side(lines[:, i], uv) for i in range(n_edges)], axis=1)  # (M, E, K)
+    outside_edge = valid & np.where(real_vertex[:, None, :], value <= 0.0, True).all(axis=2)
+    inside_edge = ~valid | np.where(real_vertex[:, None, :], value >= 0.0, True).all(axis=2)
+    separated = outside_edge.any(axis=1)
+    covered = ~separated & inside_edge.all(axis=1)
+    split = np.flatnonzero(~separated & ~covered)
+    drop = ~separated
+
+    remainder, remainder_count = uv[split], count[split]
+    out_uv, out_count, out_couple = [], [], []
+    for i in range(n_edges):  # blocker edges: 3 or 4
+        edge_ok = valid[split, i]
+        side = _side(lines[split, i], remainder)
+        outside, outside_count = clip_convex(remainder, remainder_count, -side)
+        outside_count = np.where(edge_ok, outside_count, 0)
+        inside, inside_count = clip_convex(remainder, remainder_count, side)
+        remainder = np.where(edge_ok[:, None, None], inside, _pad_to(remainder, inside.shape[1]))
+        remainder_count = np.where(edge_ok, inside_count, remainder_count)
+        big = (outside_count >= 3) & (np.abs(polygon_area_2d(outside)) > min_area[couple[split]])
+        out_uv.append(outside[big])
+        out_count.append(outside_count[big])
+        out_couple.append(couple[split][big])
+    width = max(p.shape[1] for p in out_uv)
+    new_uv = np.concatenate([_pad_to(p, width) for p in out_uv])
+    new_count = np.concatenate(out_count)
+    return trim(new_uv, new_count), new_count, np.concatenate(out_couple), drop
+
+
+def _pad_to(points: np.ndarray, width: int) -> np.ndarray:
+    """Pad (M, K, D) polygons to K = width by repeating the last column (already the last vertex)."""
+    if points.shape[1] >= width:
+        return points
+    return np.concatenate([points, np.repeat(points[:, -1:], width - points.shape[1], axis=1)], axis=1)
+
+
+def _concat_pieces(*parts):
+    width = max(max(p[0].shape[1] for p in parts), 3)
+    uv = np.concatenate([_pad_to(p[0], width) for p in parts])
+    count = np.concatenate([p[1] for p in parts])
+    couple = np.concatenate([p[2] for p in parts])
+    return trim(uv, count), count, couple
+
+
+# ------------------------------------------------------------------------------------------------------
+# Integrators. Each returns the projected solid angle F (N_couples,) of the visible light per couple,
+# so that outgoing radiance = albedo / pi * sum over lights of radiance * F.
+# ------------------------------------------------------------------------------------------------------
+
+def analytic(pieces: VisiblePieces, surface: SurfacePoints, frames: LightFrames) -> np.ndarray:
+    """Lambert's polygon formula over every visible piece (exact when no blocker was missed)."""
+    couples = pieces.couples
+    if len(pieces.count) == 0:
+        return np.zeros(len(pieces.couple_pixel))
+    directions = couples.directions(frames, pieces.uv, pieces.couple)
+    normal = surface.shading_normal[pieces.couple_pixel[pieces.couple]]
+    per_piece = projected_solid_angle(directions, normal)
+    return np.bincount(pieces.couple, weights=per_piece, minlength=len(pieces.couple_pixel))
+
+
+def reduced_domain_mc(pieces: VisiblePieces, surface: SurfacePoints, frames: LightFrames, settings: Settings,
+                      pixel_global: np.ndarray) -> np.ndarray:
+    """Monte Carlo over the visible pieces (paper 3.3): directions uniform in their solid angle."""
+    couples = pieces.couples
+    n_couples = len(pieces.couple_pixel)
+    result = np.zeros(n_couples)
+    if len(pieces.count) == 0:
+        return result
+    # Fan triangles of every piece; padded fans have zero solid angle and are never chosen.
+    directions = couples.directions(frames, pieces.uv, pieces.couple)
+    fans = directions.shape[1] - 2
+    a = np.repeat(directions[:, 0], fans, axis=0)
+    b = directions[:, 1:-1].reshape(-1, 3)
+    c = directions[:, 2:].reshape(-1, 3)
+    tri_couple = np.repeat(pieces.couple, fans)
+    omega = spherical_triangle_solid_angle(a, b, c)
+    order = np.argsort(tri_couple, kind="stable")
+    a, b, c, tri_couple, omega = a[order], b[order], c[order], tri_couple[order], omega[order]
+    cumulative = np.cumsum(omega)
+    first = np.searchsorted(tri_couple, np.arange(n_couples))
+    last = np.searchsorted(tri_couple, np.arange(n_couples), side="right") - 1
+    before = np.where(first > 0, cumulative[np.maximum(first - 1, 0)], 0.0)
+    total = np.bincount(tri_couple, weights=omega, minlength=n_couples)
+    has = (total > 0) & (last >= first)
+
+    samples = settings.mc_samples
+    couple = np.repeat(np.flatnonzero(has), samples)
+    sample = np.tile(np.arange(samples), int(has.sum()))
+    pixel = pieces.couple_pixel[couple]
+    light = couples.light[couple]
+    u = rng.uniforms(settings.seed, settings.frame, rng.STREAM_REDUCED_MC, pixel_global[pixel],
+                     light * samples + sample, 2)
+    u = rng.stratified_2d(u, sample, samples)
+    target = before[couple] + u[:, 0] * total[couple]
+    index = np.clip(np.searchsorted(cumulative, target, side="right"), first[couple], last[couple])
+    # Skip zero-solid-angle fans that searchsorted may land on at a boundary.
+    below = np.where(index > 0, cumulative[np.maximum(index - 1, 0)], 0.0)
+    below = np.where(index == first[couple], before[couple], below)
+    remapped = np.clip((target - below) / np.maximum(omega[index], 1e-300), 0.0, 1.0 - 1e-12)
+    direction, pdf = sample_spherical_triangle(a[index], b[index], c[index], np.stack([remapped, u[:, 1]], axis=1))
+    pdf_total = pdf * omega[index] / total[couple]
+    normal = surface.shading_normal[pixel]
+    cosine = np.maximum(np.einsum("nk,nk->n", direction, normal), 0.0)
+    estimate = np.where(pdf_total > 0, cosine / np.maximum(pdf_total, 1e-300), 0.0)
+    result += np.bincount(couple, weights=estimate, minlength=n_couples) / samples
+    return result
+
+
+def standard_mc(surface: SurfacePoints, frames: LightFrames, tracer, settings: Settings, pixel_global: np.ndarray
+                ) -> tuple[np.ndarray, ReceiverLight, np.ndarray, int]:
+    """The paper's baseline: shadow rays over the whole light, no blocker map.
+
+    Returns
+    -------
+    F : (Nc,) projected solid angle estimates, couples, couple_pixel, rays cast.
+    """
+    couples, couple_pixel = couples_for(surface, frames)
+    samples = settings.mc_samples
+    n_couples = len(couple_pixel)
+    if n_couples == 0:
+        return np.zeros(0), couples, couple_pixel, 0
+    rows = np.repeat(np.arange(n_couples), samples)
+    sample = np.tile(np.arange(samples), n_couples)
+    pixel, light = couple_pixel[rows], couples.light[rows]
+    u = rng.uniforms(settings.seed, settings.frame, rng.STREAM_STANDARD_MC, pixel_global[pixel],
+                     light * samples + sample, 2)
+    u = rng.stratified_2d(u, sample, samples)
+    polygons = couples.directions(frames, couples.uv[rows], rows)
+    direction, pdf, _ = sample_polygon_solid_angle(polygons, couples.count[rows], u)
+    normal = surface.geometric_normal[pixel]
+    origin = surface.position[pixel] + surface.offset[pixel, None] * normal
+    toward = -couples.side[rows] * np.einsum("nk,nk->n", direction, frames.normal[light])
+    height = couples.side[rows] * np.einsum("nk,nk->n", origin - frames.origin[light], frames.normal[light])
+    good = (pdf > 0) & (toward > 0) & (height > 0)
+    tfar = np.where(good, height / np.where(good, toward, 1.0), 0.0) * (1.0 - 1e-6)
+    occluded = np.ones(len(rows), bool)
+    occluded[good] = tracer.occluded(origin[good], direction[good], tfar[good])
+    cosine = np.maximum(np.einsum("nk,nk->n", direction, surface.shading_normal[pixel]), 0.0)
+    estimate = np.where(~occluded, cosine / np.maximum(pdf, 1e-300), 0.0)
+    return np.bincount(rows, weights=estimate, minlength=n_couples) / samples, couples, couple_pixel, int(good.sum())
+
+
+def outgoing_radiance(surface: SurfacePoints, frames: LightFrames, couples: ReceiverLight, couple_pixel: np.ndarray,
+                      projected: np.ndarray) -> np.ndarray:
+    """Diffuse outgoing radiance (N, 3): albedo / pi * sum over couples of light radiance * F."""
+    radiance = np.zeros((len(surface), 3))
+    if len(couple_pixel):
+        contribution = frames.radiance[couples.light] * projected[:, None]
+        for channel in range(3):  # colour channels
+            radiance[:, channel] = np.bincount(couple_pixel, weights=contribution[:, channel], minlength=len(surface))
+    return radiance * surface.albedo / np.pi

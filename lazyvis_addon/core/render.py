@@ -1,0 +1,215 @@
+"""The one door into the core: ``render(scene, settings, progress) -> RenderOutput``.
+
+Stages, in order: validate the scene, build the ray tracer, trace camera rays, pass 1 (the blocker map),
+pass 2 (illumination per pixel batch), compose the passes.
+"""
+
+from __future__ import annotations
+
+import resource
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .blocker_map import BlockerMap, build_blocker_map, reference_blocker_map
+from .camera import camera_rays, planar_depth, window_pixels
+from .geometry import light_frames
+from .illumination import analytic, outgoing_radiance, reduced_domain_mc, standard_mc, visible_pieces
+from .progress import Progress
+from .scene import Scene
+from .settings import Settings
+from .surface import SurfacePoints, scene_extent, shade_hits
+from .trace import RayTracer
+
+# Depth written where no surface is seen (Blender's convention for an empty Z pass).
+BACKGROUND_DEPTH = 1e10
+
+
+@dataclass
+class RenderOutput:
+    """The image and its passes, for the rendered window (row 0 = top row).
+
+    Attributes
+    ----------
+    combined : (H, W, 4) float32     linear RGBA; alpha 1 where a surface is seen.
+    blocker_count : (H, W) int32     blocker–light pairs stored per pixel.
+    umbra : (H, W, L) bool           the light is hidden at this pixel (umbra detection).
+    depth : (H, W) float32           planar camera depth, BACKGROUND_DEPTH where nothing is hit.
+    normal : (H, W, 3) float32       world-space shading normal facing the camera (0 on background).
+    warnings : list[str]
+    stats : dict                     stage seconds, rays, pairs, peak memory.
+    """
+
+    combined: np.ndarray
+    blocker_count: np.ndarray
+    umbra: np.ndarray
+    depth: np.ndarray
+    normal: np.ndarray
+    warnings: list = field(default_factory=list)
+    stats: dict = field(default_factory=dict)
+
+
+def render(scene: Scene, settings: Settings | None = None, progress: Progress | None = None) -> RenderOutput:
+    """Render direct illumination from polygon lights with exact soft shadows.
+
+    Raises
+    ------
+    ValueError      bad input (the message names what is wrong).
+    MemoryError     the memory budget in ``settings`` is too small for the image.
+    RenderCancelled the progress object reported a cancel.
+    """
+    settings = settings or Settings()
+    progress = progress or Progress()
+    started = time.perf_counter()
+    progress.begin_stage("Validating scene")
+    scene = scene.validated(progress)
+    camera = scene.camera
+    height, width = camera.window_shape
+    n_pixels = height * width
+    stats: dict = {"triangles": len(scene.triangles), "lights": len(scene.lights), "pixels": n_pixels}
+    if len(scene.lights) == 0:
+        progress.warn("the scene has no lights: surfaces render black")
+
+    progress.begin_stage("Building BVH")
+    tracer = RayTracer(scene.triangles)
+    extent = scene_extent(scene)
+
+    frames = light_frames(scene.lights)
+    pixel_global = _global_pixels(camera)
+    blockers = None
+    if settings.integrator in ("analytic", "reduced_mc"):
+        # Pass 1 runs over the window grown by a margin; pass 2 shades only the window.
+        outer = _grown_window(camera, settings.window_margin)
+        outer_surface = _primary(scene, tracer, extent, settings, progress, outer)
+        outer_shape = (outer[3] - outer[1], outer[2] - outer[0])
+        outer_global = _global_pixels(camera, outer)
+        blockers = build_blocker_map(outer_surface, frames, scene.triangles, tracer, outer_shape, outer_global,
+                                     settings, progress)
+        inner = _inner_indices(camera.window, outer)
+        surface = outer_surface.take(inner)
+        blockers = blockers.crop(inner, outer_shape[0] * outer_shape[1])
+    else:
+        surface = _primary(scene, tracer, extent, settings, progress)
+        if settings.integrator == "reference":
+            blockers = reference_blocker_map(surface, frames, scene.triangles, (height, width), settings, progress)
+    if blockers is not None:
+        stats.update(blockers.stats)
+        stats["pairs_stored"] = len(blockers.pixel)
+
+    radiance, pass2_stats = _illuminate(surface, frames, scene.triangles, tracer, blockers, settings, pixel_global,
+                                        progress)
+    stats.update(pass2_stats)
+
+    progress.begin_stage("Composing passes")
+    output = _compose(scene, surface, radiance, blockers, settings, (height, width))
+    progress.end_stage()
+    stats["rays_cast"] = tracer.n_rays_cast
+    stats["seconds"] = time.perf_counter() - started
+    stats["stage_seconds"] = dict(progress.stage_seconds)
+    stats["peak_memory_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    output.stats = stats
+    output.warnings = list(progress.warnings)
+    return output
+
+
+def _global_pixels(camera, window=None) -> np.ndarray:
+    xs, ys = window_pixels(camera, window)
+    return ys * camera.width + xs
+
+
+def _grown_window(camera, margin: int) -> tuple[int, int, int, int]:
+    x0, y0, x1, y1 = camera.window
+    return (max(0, x0 - margin), max(0, y0 - margin), min(camera.width, x1 + margin), min(camera.height, y1 + margin))
+
+
+def _inner_indices(window, outer) -> np.ndarray:
+    """Row-major indices, in the outer window's grid, of the inner window's pixels (ascending)."""
+    x0, y0, x1, y1 = window
+    ox0, oy0, ox1, _ = outer
+    rows, cols = np.mgrid[y0 - oy0:y1 - oy0, x0 - ox0:x1 - ox0]
+    return (rows * (ox1 - ox0) + cols).reshape(-1)
+
+
+def _primary(scene: Scene, tracer, extent: float, settings: Settings, progress: Progress,
+             window=None) -> SurfacePoints:
+    """Camera rays through pixel centres of ``window`` (default: the camera's) and what they see."""
+    camera = scene.camera
+    xs, ys = window_pixels(camera, window)
+    parts = []
+    progress.begin_stage("Camera rays", len(xs))
+    for start in range(0, len(xs), settings.pixel_batch * 4):  # batches of pixels
+        rows = slice(start, start + settings.pixel_batch * 4)
+        origins, directions = camera_rays(camera, xs[rows], ys[rows])
+        hits = tracer.intersect(origins, directions, None)
+        parts.append(shade_hits(scene, origins, directions, hits.index_triangle, hits.u, hits.v, extent))
+        progress.advance(len(origins))
+    progress.end_stage()
+    return SurfacePoints(*(np.concatenate([getattr(p, name) for p in parts]) for name in
+                           ("hit", "position", "geometric_normal", "shading_normal", "index_triangle", "albedo",
+                            "offset")))
+
+
+def _illuminate(surface: SurfacePoints, frames, triangles, tracer, blockers: BlockerMap | None, settings: Settings,
+                pixel_global: np.ndarray, progress: Progress) -> tuple[np.ndarray, dict]:
+    """Pass 2 over pixel batches: outgoing radiance (N, 3)."""
+    n_pixels = len(surface)
+    radiance = np.zeros((n_pixels, 3))
+    stats = {"pieces": 0, "max_blockers_per_couple": 0}
+    if len(frames) == 0:
+        return radiance, stats
+    batch = settings.pixel_batch
+    # Entries are sorted by pixel, so each batch's entries form one contiguous run.
+    entry_bounds = None
+    if blockers is not None:
+        entry_bounds = np.searchsorted(blockers.pixel, np.arange(0, n_pixels + batch, batch))
+    progress.begin_stage("Illumination", n_pixels)
+    for index, start in enumerate(range(0, n_pixels, batch)):  # batches of pixels
+        stop = min(start + batch, n_pixels)
+        part = surface.take(np.arange(start, stop))
+        globals_ = pixel_global[start:stop]
+        if settings.integrator == "standard_mc":
+            projected, couples, couple_pixel, _ = standard_mc(part, frames, tracer, settings, globals_)
+        else:
+            lo, hi = entry_bounds[index], entry_bounds[index + 1]
+            local = BlockerMap(blockers.pixel[lo:hi] - start, blockers.light[lo:hi], blockers.triangle[lo:hi],
+                               blockers.umbra[start:stop])
+            pieces = visible_pieces(part, frames, triangles, local)
+            stats["pieces"] += len(pieces.count)
+            stats["max_blockers_per_couple"] = max(stats["max_blockers_per_couple"], pieces.max_rounds)
+            couples, couple_pixel = pieces.couples, pieces.couple_pixel
+            if settings.integrator == "reduced_mc":
+                projected = reduced_domain_mc(pieces, part, frames, settings, globals_)
+            else:
+                projected = analytic(pieces, part, frames)
+        radiance[start:stop] = outgoing_radiance(part, frames, couples, couple_pixel, projected)
+        progress.advance(stop - start)
+    progress.end_stage()
+    return radiance, stats
+
+
+def _compose(scene: Scene, surface: SurfacePoints, radiance: np.ndarray, blockers: BlockerMap | None,
+             settings: Settings, shape: tuple[int, int]) -> RenderOutput:
+    height, width = shape
+    n_pixels = height * width
+    hit = surface.hit
+    combined = np.zeros((n_pixels, 4), np.float32)
+    combined[hit, :3] = radiance[hit]
+    combined[hit, 3] = 1.0
+    if not settings.transparent_background:
+        combined[~hit, :3] = scene.background
+        combined[~hit, 3] = 1.0
+    depth = np.full(n_pixels, BACKGROUND_DEPTH, np.float32)
+    depth[hit] = planar_depth(scene.camera, surface.position[hit])
+    normal = np.zeros((n_pixels, 3), np.float32)
+    normal[hit] = surface.shading_normal[hit]
+    n_lights = len(scene.lights)
+    if blockers is not None:
+        count = blockers.count_per_pixel(n_pixels)
+        umbra = blockers.umbra
+    else:
+        count = np.zeros(n_pixels, np.int32)
+        umbra = np.zeros((n_pixels, n_lights), bool)
+    return RenderOutput(combined.reshape(height, width, 4), count.reshape(height, width),
+                        umbra.reshape(height, width, n_lights), depth.reshape(height, width),
+                        normal.reshape(height, width, 3))

@@ -1,0 +1,358 @@
+"""The scene the core renders: plain numpy arrays, no Blender.
+
+Vocabulary used in every docstring of the core: T triangles, M materials, L lights, V polygon vertices
+(padded to the largest light), H x W image (the rendered window), N rays or pixels.
+World units are metres; radiance is W m^-2 sr^-1 per colour channel (linear, scene-referred).
+
+Conventions follow Blender: the camera looks along its local -Z with +Y up; image row 0 is the top row.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .progress import Progress
+
+PROJECTIONS = ("perspective", "orthographic")
+
+
+def _as_float_array(name: str, value, shape_tail: tuple[int, ...]) -> np.ndarray:
+    array = np.asarray(value, dtype=np.float64)
+    if array.ndim != len(shape_tail) + 1 or tuple(array.shape[1:]) != shape_tail:
+        want = " x ".join(["N"] + [str(s) for s in shape_tail])
+        raise ValueError(f"{name} must have shape {want}, got {array.shape}")
+    return array
+
+
+def _require_finite(name: str, array: np.ndarray) -> None:
+    bad = ~np.isfinite(array)
+    if bad.any():
+        flat = np.flatnonzero(bad.reshape(len(array), -1).any(axis=1)) if array.ndim > 1 else np.flatnonzero(bad)
+        shown = ", ".join(str(i) for i in flat[:5]) + (" ..." if len(flat) > 5 else "")
+        raise ValueError(f"{name} contain NaN or infinite values (entries {shown}; {len(flat)} in all)")
+
+
+@dataclass
+class Camera:
+    """A pinhole (perspective) or orthographic camera.
+
+    Attributes
+    ----------
+    world_from_camera : (4, 4) float64
+        Camera-to-world transform; the camera looks along its local -Z, +Y is up, +X right.
+    width, height : int
+        Full-frame resolution in pixels.
+    projection : str
+        ``"perspective"`` or ``"orthographic"``.
+    screen_window : (4,) float64
+        ``(left, right, bottom, top)`` of the full frame: for a perspective camera on the plane z = -1 in
+        camera space (so tan of the half angles), for an orthographic one in camera-space units.
+    window : (4,) int
+        ``(x0, y0, x1, y1)`` pixel window of the full frame to render (x to the right, y down from the top
+        row, exclusive ends): a border or a tile. Random numbers use full-frame pixel coordinates, so a
+        window renders exactly the pixels of the full frame.
+    """
+
+    world_from_camera: np.ndarray
+    width: int
+    height: int
+    projection: str = "perspective"
+    screen_window: np.ndarray = field(default_factory=lambda: np.array([-0.5, 0.5, -0.5, 0.5]))
+    window: tuple[int, int, int, int] | None = None
+
+    def __post_init__(self) -> None:
+        self.world_from_camera = np.asarray(self.world_from_camera, dtype=np.float64).reshape(4, 4)
+        self.screen_window = np.asarray(self.screen_window, dtype=np.float64).reshape(4)
+        self.width, self.height = int(self.width), int(self.height)
+        if self.projection not in PROJECTIONS:
+            raise ValueError(f"camera projection must be one of {PROJECTIONS}, not {self.projection!r}")
+        if self.width < 1 or self.height < 1:
+            raise ValueError(f"camera resolution must be at least 1 x 1, got {self.width} x {self.height}")
+        if not (np.isfinite(self.world_from_camera).all() and np.isfinite(self.screen_window).all()):
+            raise ValueError("camera transform or screen window contains NaN or infinite values")
+        left, right, bottom, top = self.screen_window
+        if not (right > left and top > bottom):
+            raise ValueError(f"camera screen window must have right > left and top > bottom, got {self.screen_window}")
+        if self.window is None:
+            self.window = (0, 0, self.width, self.height)
+        x0, y0, x1, y1 = (int(v) for v in self.window)
+        if not (0 <= x0 < x1 <= self.width and 0 <= y0 < y1 <= self.height):
+            raise ValueError(f"pixel window {self.window} is empty or outside the {self.width} x {self.height} frame")
+        self.window = (x0, y0, x1, y1)
+
+    @classmethod
+    def perspective(cls, world_from_camera, width: int, height: int, fov: float,
+                    shift: tuple[float, float] = (0.0, 0.0), pixel_aspect: float = 1.0,
+                    window=None) -> "Camera":
+        """A perspective camera whose full field of view ``fov`` (radians) spans the longer image side,
+        as Blender's sensor fit AUTO does; ``shift`` in units of the longer side, as Blender's lens shift."""
+        half = np.tan(0.5 * fov)
+        return cls(world_from_camera, width, height, "perspective",
+                   _fit_window(half, width, height, shift, pixel_aspect), window)
+
+    @classmethod
+    def orthographic(cls, world_from_camera, width: int, height: int, ortho_scale: float,
+                     shift: tuple[float, float] = (0.0, 0.0), pixel_aspect: float = 1.0,
+                     window=None) -> "Camera":
+        """An orthographic camera whose view spans ``ortho_scale`` units along the longer image side."""
+        return cls(world_from_camera, width, height, "orthographic",
+                   _fit_window(0.5 * ortho_scale, width, height, shift, pixel_aspect), window)
+
+    @property
+    def window_shape(self) -> tuple[int, int]:
+        """(H, W) of the rendered window."""
+        x0, y0, x1, y1 = self.window
+        return (y1 - y0, x1 - x0)
+
+    @property
+    def position(self) -> np.ndarray:
+        return self.world_from_camera[:3, 3].copy()
+
+
+def _fit_window(half_long: float, width: int, height: int, shift, pixel_aspect: float) -> np.ndarray:
+    """Screen window with the longer side (in aspect-corrected pixels) spanning [-half_long, half_long]."""
+    aspect_width, aspect_height = width * pixel_aspect, float(height)
+    if aspect_width >= aspect_height:
+        half_x, half_y = half_long, half_long * aspect_height / aspect_width
+    else:
+        half_x, half_y = half_long * aspect_width / aspect_height, half_long
+    dx, dy = 2.0 * half_long * shift[0], 2.0 * half_long * shift[1]
+    return np.array([-half_x + dx, half_x + dx, -half_y + dy, half_y + dy])
+
+
+@dataclass
+class Lights:
+    """Planar convex polygon lights of constant radiance.
+
+    Attributes
+    ----------
+    vertices : (L, V, 3) float64
+        Polygon vertices in world space, padded to V by repeating the last vertex. Ordered
+        counter-clockwise about the emitting normal ``normalize((v1 - v0) x (v2 - v0))``.
+    vertex_count : (L,) int64
+        Real vertex count of each light (3 <= count <= V).
+    radiance : (L, 3) float64
+        Emitted radiance per colour channel, W m^-2 sr^-1.
+    two_sided : (L,) bool
+        Emit from both sides (mesh emitters); one-sided lights emit to the side of their normal only.
+    """
+
+    vertices: np.ndarray
+    vertex_count: np.ndarray
+    radiance: np.ndarray
+    two_sided: np.ndarray
+
+    @classmethod
+    def from_polygons(cls, polygons, radiance, two_sided=None) -> "Lights":
+        """Lights from a list of (V_i, 3) vertex arrays, (L, 3) radiance and optional (L,) two-sided flags."""
+        polygons = [np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in polygons]
+        count = len(polygons)
+        vmax = max([len(p) for p in polygons], default=3)
+        vertices = np.zeros((count, max(vmax, 3), 3))
+        for index, poly in enumerate(polygons):  # one per light, not per pixel
+            if len(poly) < 3:
+                raise ValueError(f"light {index} has {len(poly)} vertices; a polygon light needs at least 3")
+            vertices[index, :len(poly)] = poly
+            vertices[index, len(poly):] = poly[-1]
+        radiance = np.asarray(radiance, dtype=np.float64).reshape(count, 3)
+        two_sided = np.zeros(count, bool) if two_sided is None else np.asarray(two_sided, bool).reshape(count)
+        return cls(vertices, np.array([len(p) for p in polygons], dtype=np.int64), radiance, two_sided)
+
+    @classmethod
+    def empty(cls) -> "Lights":
+        return cls(np.zeros((0, 3, 3)), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0, bool))
+
+    def __len__(self) -> int:
+        return len(self.vertex_count)
+
+    def subset(self, keep: np.ndarray) -> "Lights":
+        return Lights(self.vertices[keep], self.vertex_count[keep], self.radiance[keep], self.two_sided[keep])
+
+
+@dataclass
+class Materials:
+    """Material table, indexed by ``Scene.material_index``.
+
+    Attributes
+    ----------
+    albedo : (M, 3) float64
+        Diffuse reflectance per colour channel in [0, 1]; the BRDF is albedo / pi.
+    """
+
+    albedo: np.ndarray
+
+    @classmethod
+    def diffuse(cls, albedo) -> "Materials":
+        return cls(np.asarray(albedo, dtype=np.float64).reshape(-1, 3))
+
+    def __len__(self) -> int:
+        return len(self.albedo)
+
+
+@dataclass
+class Scene:
+    """Everything the core renders.
+
+    Attributes
+    ----------
+    triangles : (T, 3, 3) float64
+        World-space triangle vertices.
+    material_index : (T,) int64
+        Row of ``materials`` for each triangle.
+    materials : Materials
+    lights : Lights
+    camera : Camera
+    background : (3,) float64
+        Constant background radiance seen where no surface is hit.
+    shading_normals : (T, 3, 3) float64 or None
+        Optional per-vertex shading normals (smooth shading); None shades with the geometric normal.
+    """
+
+    triangles: np.ndarray
+    material_index: np.ndarray
+    materials: Materials
+    lights: Lights
+    camera: Camera
+    background: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    shading_normals: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        self.triangles = _as_float_array("triangles", self.triangles, (3, 3)) if len(np.asarray(self.triangles)) \
+            else np.zeros((0, 3, 3))
+        self.material_index = np.asarray(self.material_index, dtype=np.int64).reshape(-1)
+        self.background = np.asarray(self.background, dtype=np.float64).reshape(3)
+        if self.shading_normals is not None:
+            self.shading_normals = _as_float_array("shading normals", self.shading_normals, (3, 3))
+
+    # -- validation ----------------------------------------------------------------------------------
+    def validated(self, progress: Progress | None = None) -> "Scene":
+        """A copy fit to render: bad values raise a ValueError naming what is wrong; degenerate triangles
+        and lights are dropped with a warning on ``progress``.
+
+        Raises
+        ------
+        ValueError
+            NaN or infinite coordinates, radiance or albedo; negative radiance or albedo; material indices
+            out of range; shape mismatches; a non-planar or non-convex light polygon.
+        """
+        progress = progress or Progress()
+        triangles, material_index = self.triangles, self.material_index
+        if len(material_index) != len(triangles):
+            raise ValueError(f"material_index has {len(material_index)} entries for {len(triangles)} triangles")
+        _require_finite("triangle vertices", triangles)
+        albedo = np.asarray(self.materials.albedo, dtype=np.float64).reshape(-1, 3)
+        _require_finite("material albedos", albedo)
+        if (albedo < 0).any():
+            raise ValueError("material albedos must not be negative")
+        if len(triangles) and (material_index.min() < 0 or material_index.max() >= len(albedo)):
+            raise ValueError(f"material_index refers to materials outside 0..{len(albedo) - 1}")
+        _require_finite("background colour", self.background[None])
+
+        shading_normals = self.shading_normals
+        if shading_normals is not None:
+            if shading_normals.shape != triangles.shape:
+                raise ValueError(f"shading normals have shape {shading_normals.shape}, triangles {triangles.shape}")
+            _require_finite("shading normals", shading_normals)
+
+        # Zero-area triangles can be hit by no ray and block nothing; drop them (scale-relative test).
+        cross = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+        doubled_area = np.linalg.norm(cross, axis=1)
+        edge_scale = np.max(np.linalg.norm(triangles - np.roll(triangles, 1, axis=1), axis=2), axis=1) \
+            if len(triangles) else np.zeros(0)
+        degenerate = doubled_area <= 1e-12 * np.maximum(edge_scale ** 2, 1e-300)
+        if degenerate.any():
+            progress.warn(f"dropped {int(degenerate.sum())} zero-area triangle(s)")
+            keep = ~degenerate
+            triangles, material_index = triangles[keep], material_index[keep]
+            if shading_normals is not None:
+                shading_normals = shading_normals[keep]
+
+        lights = _validated_lights(self.lights, progress)
+        return Scene(triangles, material_index, Materials(albedo), lights, self.camera, self.background,
+                     shading_normals)
+
+    # -- files ---------------------------------------------------------------------------------------
+    def save_npz(self, path) -> None:
+        """Write the scene as a .npz archive that ``Scene.load_npz`` and the command line read."""
+        camera = self.camera
+        arrays = dict(
+            triangles=self.triangles, material_index=self.material_index, albedo=self.materials.albedo,
+            light_vertices=self.lights.vertices, light_vertex_count=self.lights.vertex_count,
+            light_radiance=self.lights.radiance, light_two_sided=self.lights.two_sided,
+            world_from_camera=camera.world_from_camera, resolution=np.array([camera.width, camera.height]),
+            projection=np.array(camera.projection), screen_window=camera.screen_window,
+            window=np.array(camera.window), background=self.background,
+        )
+        if self.shading_normals is not None:
+            arrays["shading_normals"] = self.shading_normals
+        np.savez_compressed(path, **arrays)
+
+    @classmethod
+    def load_npz(cls, path) -> "Scene":
+        """Read a scene written by ``save_npz``; a missing array raises a ValueError naming it."""
+        with np.load(path, allow_pickle=False) as data:
+            required = ("triangles", "material_index", "albedo", "light_vertices", "light_vertex_count",
+                        "light_radiance", "world_from_camera", "resolution", "screen_window")
+            missing = [name for name in required if name not in data]
+            if missing:
+                raise ValueError(f"{path}: not a LazyVis scene, missing arrays {', '.join(missing)}")
+            width, height = (int(v) for v in data["resolution"])
+            window = tuple(int(v) for v in data["window"]) if "window" in data else None
+            camera = Camera(data["world_from_camera"], width, height,
+                            str(data["projection"]) if "projection" in data else "perspective",
+                            data["screen_window"], window)
+            count = len(data["light_vertex_count"])
+            lights = Lights(np.array(data["light_vertices"], dtype=np.float64).reshape(count, -1, 3),
+                            np.array(data["light_vertex_count"], dtype=np.int64),
+                            np.array(data["light_radiance"], dtype=np.float64).reshape(count, 3),
+                            np.array(data["light_two_sided"], bool) if "light_two_sided" in data
+                            else np.zeros(count, bool))
+            return cls(np.array(data["triangles"]), np.array(data["material_index"]),
+                       Materials(np.array(data["albedo"], dtype=np.float64).reshape(-1, 3)), lights, camera,
+                       np.array(data["background"]) if "background" in data else np.zeros(3),
+                       np.array(data["shading_normals"]) if "shading_normals" in data else None)
+
+
+def _validated_lights(lights: Lights, progress: Progress) -> Lights:
+    """Check light polygons (finite, planar, convex, non-negative radiance); drop zero-area ones with a warning."""
+    count = len(lights)
+    if count == 0:
+        return lights
+    vertices = np.asarray(lights.vertices, dtype=np.float64)
+    _require_finite("light vertices", vertices)
+    radiance = np.asarray(lights.radiance, dtype=np.float64)
+    _require_finite("light radiance", radiance)
+    if (radiance < 0).any():
+        raise ValueError("light radiance must not be negative")
+    vertex_count = np.asarray(lights.vertex_count, dtype=np.int64)
+    if (vertex_count < 3).any() or (vertex_count > vertices.shape[1]).any():
+        raise ValueError("each light needs between 3 and V vertices")
+
+    # Newell's normal: robust for any planar polygon, length = 2 x area.
+    newell = np.zeros((count, 3))
+    vmax = vertices.shape[1]
+    for k in range(vmax):  # loop over polygon vertices (a handful), arrays over lights
+        nxt = (k + 1) % vmax
+        newell += np.cross(vertices[:, k], vertices[:, nxt])
+    area = 0.5 * np.linalg.norm(newell, axis=1)
+    size = np.max(np.linalg.norm(vertices - vertices[:, :1], axis=2), axis=1)
+    zero = (area <= 1e-12 * np.maximum(size ** 2, 1e-300)) | (radiance.max(axis=1) <= 0)
+    if zero.any():
+        names = ", ".join(str(i) for i in np.flatnonzero(zero))
+        progress.warn(f"dropped {int(zero.sum())} light(s) with zero area or zero radiance (light {names})")
+    keep = ~zero
+    vertices, vertex_count, radiance = vertices[keep], vertex_count[keep], radiance[keep]
+    normal = newell[keep] / np.maximum(np.linalg.norm(newell[keep], axis=1, keepdims=True), 1e-300)
+    size = size[keep]
+    # Planarity and convexity, to a tolerance relative to the light's size.
+    offsets = np.einsum("lvk,lk->lv", vertices - vertices[:, :1], normal)
+    if (np.abs(offsets) > 1e-6 * size[:, None]).any():
+        raise ValueError("light polygons must be planar")
+    turn = np.einsum("lvk,lk->lv", np.cross(np.roll(vertices, -1, axis=1) - vertices,
+                                            np.roll(vertices, -2, axis=1) - np.roll(vertices, -1, axis=1)), normal)
+    if (turn < -1e-9 * size[:, None] ** 2).any():
+        raise ValueError("light polygons must be convex")
+    two_sided = np.asarray(lights.two_sided, bool)[keep]
+    return Lights(vertices, vertex_count, radiance, two_sided)

@@ -1,0 +1,82 @@
+"""Render settings: one dataclass holding every default of the core.
+
+The Blender layer maps ``scene.lazyvis`` onto this in one function; the command line maps its flags
+onto it. Nothing else in the core has a default of its own.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields, replace
+
+INTEGRATORS = ("analytic", "reduced_mc", "standard_mc", "reference")
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Every knob of the renderer core.
+
+    Attributes
+    ----------
+    integrator : str
+        ``"analytic"`` (blocker map, Lambert's polygon formula over the visible pieces: exact when no
+        blocker was missed), ``"reduced_mc"`` (blocker map, Monte Carlo over the visible pieces, paper 3.3),
+        ``"standard_mc"`` (shadow rays over the whole light: the paper's baseline) or ``"reference"``
+        (every triangle is a candidate blocker: exact and slow, the oracle for tests).
+    shadow_rays : int
+        Shadow rays per pixel and light in pass 1 (blocker detection), stratified over the light's solid angle.
+    mc_samples : int
+        Samples per pixel and light for the two Monte Carlo integrators.
+    connectivity : int
+        Flood-fill neighbourhood, 8 (the paper's text) or 4 (its Fig. 3 pseudo-code).
+    umbra_detection : bool
+        Mark a light hidden at a pixel when one projected blocker surrounds it (paper section 5).
+    seed : int
+        Random seed; random numbers derive from (seed, frame, global pixel), so tiles match the full frame.
+    frame : int
+        Frame number, mixed into the random numbers.
+    transparent_background : bool
+        Background pixels get RGBA 0 instead of the background colour with alpha 1.
+    memory_budget_mb : float
+        Working memory the passes may use for their batches; a budget too small to render fails clearly.
+    pixel_batch : int
+        Pixels per batch in pass 2 and for camera rays (progress and cancel granularity).
+    window_margin : int
+        When rendering a window (border or tile), pass 1 also covers this many pixels of the frame
+        around it, so that blockers found just outside the window flood into it as they would in the
+        full frame. A margin as large as the frame makes a window exactly equal to the full frame's pixels;
+        the integrators without a blocker map are always exact.
+    """
+
+    integrator: str = "analytic"
+    shadow_rays: int = 4
+    mc_samples: int = 16
+    connectivity: int = 8
+    umbra_detection: bool = True
+    seed: int = 0
+    frame: int = 0
+    transparent_background: bool = False
+    memory_budget_mb: float = 2048.0
+    pixel_batch: int = 16384
+    window_margin: int = 32
+
+    def __post_init__(self) -> None:
+        if self.integrator not in INTEGRATORS:
+            raise ValueError(f"integrator must be one of {', '.join(INTEGRATORS)}, not {self.integrator!r}")
+        if self.connectivity not in (4, 8):
+            raise ValueError(f"connectivity must be 4 or 8, not {self.connectivity!r}")
+        for name in ("shadow_rays", "mc_samples", "pixel_batch"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be a positive integer, not {value!r}")
+        if not isinstance(self.window_margin, int) or self.window_margin < 0:
+            raise ValueError(f"window_margin must be a non-negative integer, not {self.window_margin!r}")
+        if not self.memory_budget_mb > 0:
+            raise ValueError(f"memory_budget_mb must be positive, not {self.memory_budget_mb!r}")
+
+    def replace(self, **changes) -> "Settings":
+        """A copy with some fields changed (validated again)."""
+        return replace(self, **changes)
+
+    @classmethod
+    def field_names(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in fields(cls))

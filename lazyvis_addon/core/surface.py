@@ -1,0 +1,92 @@
+"""Primary visibility: what each pixel sees, with the normals and offsets the passes need."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .scene import Scene
+
+# Shadow-ray origins move off the surface by this many units of the hit point's coordinate magnitude
+# (float32 Embree keeps ~7 digits), plus a floor relative to the scene's extent: scale independent.
+OFFSET_RELATIVE = 2e-5
+OFFSET_SCENE = 1e-7
+
+
+@dataclass
+class SurfacePoints:
+    """The visible point of every pixel of a batch (or of the window).
+
+    Attributes
+    ----------
+    hit : (N,) bool                   a surface is seen.
+    position : (N, 3) float64         visible point x (world), exact on the triangle (from barycentrics).
+    geometric_normal : (N, 3)         unit, turned to face the camera (receivers are two-sided).
+    shading_normal : (N, 3)           unit, interpolated if the scene has shading normals, on the
+                                      geometric normal's side.
+    index_triangle : (N,) int64       -1 where nothing is hit.
+    albedo : (N, 3) float64
+    offset : (N,) float64             shadow-ray origin offset along the geometric normal (world units).
+    """
+
+    hit: np.ndarray
+    position: np.ndarray
+    geometric_normal: np.ndarray
+    shading_normal: np.ndarray
+    index_triangle: np.ndarray
+    albedo: np.ndarray
+    offset: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.hit)
+
+    def take(self, index: np.ndarray) -> "SurfacePoints":
+        return SurfacePoints(self.hit[index], self.position[index], self.geometric_normal[index],
+                             self.shading_normal[index], self.index_triangle[index], self.albedo[index],
+                             self.offset[index])
+
+
+def scene_extent(scene: Scene) -> float:
+    """Diagonal of the bounding box of triangles and lights (world units; 1 for an empty scene)."""
+    points = [scene.triangles.reshape(-1, 3), scene.lights.vertices.reshape(-1, 3)]
+    points = np.concatenate([p for p in points if len(p)]) if any(len(p) for p in points) else np.zeros((0, 3))
+    if len(points) == 0:
+        return 1.0
+    return float(np.linalg.norm(points.max(axis=0) - points.min(axis=0))) or 1.0
+
+
+def shade_hits(scene: Scene, ray_origins: np.ndarray, ray_directions: np.ndarray, index_triangle: np.ndarray,
+               u: np.ndarray, v: np.ndarray, extent: float) -> SurfacePoints:
+    """Surface points from primary hits (index_triangle -1 = miss), all arrays (N, ...)."""
+    n = len(index_triangle)
+    hit = index_triangle >= 0
+    tri = np.where(hit, index_triangle, 0)
+    position = np.zeros((n, 3))
+    geometric = np.zeros((n, 3))
+    shading = np.zeros((n, 3))
+    albedo = np.zeros((n, 3))
+    if hit.any() and len(scene.triangles):
+        corners = scene.triangles[tri[hit]]
+        uh, vh = u[hit][:, None], v[hit][:, None]
+        position[hit] = (1.0 - uh - vh) * corners[:, 0] + uh * corners[:, 1] + vh * corners[:, 2]
+        normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+        facing = np.where(np.einsum("nk,nk->n", normal, ray_directions[hit]) > 0, -1.0, 1.0)
+        normal *= facing[:, None]
+        geometric[hit] = normal
+        if scene.shading_normals is not None:
+            vertex_normals = scene.shading_normals[tri[hit]]
+            smooth = (1.0 - uh - vh) * vertex_normals[:, 0] + uh * vertex_normals[:, 1] + vh * vertex_normals[:, 2]
+            smooth *= facing[:, None]
+            length = np.linalg.norm(smooth, axis=1, keepdims=True)
+            smooth = np.where(length > 1e-12, smooth / np.maximum(length, 1e-300), normal)
+            # A shading normal on the far side of the surface would light it from behind: bend it back.
+            below = np.einsum("nk,nk->n", smooth, normal)
+            smooth = np.where((below <= 0)[:, None], normal, smooth)
+            shading[hit] = smooth
+        else:
+            shading[hit] = normal
+        albedo[hit] = scene.materials.albedo[scene.material_index[tri[hit]]]
+    offset = OFFSET_RELATIVE * np.abs(position).max(axis=1) + OFFSET_SCENE * extent
+    return SurfacePoints(hit, position, geometric, shading, np.where(hit, index_triangle, -1), albedo, offset)

@@ -1,0 +1,95 @@
+"""Closed forms for the geometry kernel: clipping, cone overlap, Lambert's polygon formula."""
+
+import numpy as np
+import pytest
+
+from lazyvis_addon.core.geometry import (blocker_in_front_of_light, clip_convex, cones_overlap, polygon_area_2d,
+                                         projected_solid_angle)
+
+SQUARE = np.array([[0.5, -0.5, 1.0], [0.5, 0.5, 1.0], [-0.5, 0.5, 1.0], [-0.5, -0.5, 1.0]])
+
+
+def quadrature_projected_solid_angle(corners, receiver, normal, n=600):
+    """Integral over a planar quad's area of cos_r cos_l / r^2 by the midpoint rule (independent of Eq. 3)."""
+    o, e1, e2 = corners[0], corners[1] - corners[0], corners[3] - corners[0]
+    s = (np.arange(n) + 0.5) / n
+    uu, vv = np.meshgrid(s, s)
+    points = o + uu[..., None] * e1 + vv[..., None] * e2
+    light_normal = np.cross(e1, e2)
+    area = np.linalg.norm(light_normal)
+    light_normal /= area
+    d = points - receiver
+    r2 = np.einsum("...k,...k", d, d)
+    cos_r = np.maximum(np.einsum("...k,k", d, normal), 0) / np.sqrt(r2)
+    cos_l = np.abs(np.einsum("...k,k", d, light_normal)) / np.sqrt(r2)
+    return float(np.sum(cos_r * cos_l / r2) * area / n ** 2)
+
+
+@pytest.mark.parametrize("receiver,normal", [
+    ((0, 0, 0), (0, 0, 1)),
+    ((0.7, -0.3, 0.2), (0, 0, 1)),
+    ((0.2, 0.1, 0), (0.6, 0.0, 0.8)),
+    ((-1.5, 0.4, 0.5), (1.0, 0.0, 0.2)),
+])
+def test_lambert_matches_quadrature(receiver, normal):
+    receiver = np.asarray(receiver, float)
+    normal = np.asarray(normal, float) / np.linalg.norm(normal)
+    expected = quadrature_projected_solid_angle(SQUARE, receiver, normal)
+    got = projected_solid_angle((SQUARE - receiver)[None], normal[None])[0]
+    assert got == pytest.approx(expected, rel=2e-4)
+
+
+def test_lambert_full_hemisphere_is_pi():
+    # A huge square far above covers (nearly) the whole hemisphere: integral of cos = pi.
+    big = SQUARE * np.array([1e6, 1e6, 1.0])
+    assert projected_solid_angle(big[None], np.array([[0, 0, 1.0]]))[0] == pytest.approx(np.pi, rel=1e-5)
+
+
+def test_lambert_ignores_winding_and_padding():
+    padded = np.concatenate([SQUARE, SQUARE[-1:], SQUARE[-1:]])
+    normal = np.array([[0, 0, 1.0]])
+    a = projected_solid_angle(SQUARE[None], normal)[0]
+    assert projected_solid_angle(SQUARE[::-1][None].copy(), normal)[0] == pytest.approx(a, rel=1e-12)
+    assert projected_solid_angle(padded[None], normal)[0] == pytest.approx(a, rel=1e-12)
+
+
+def test_clip_keeps_the_right_half_and_area():
+    square = SQUARE[None, :, :2].copy()
+    for offset in (-0.4, 0.0, 0.3):
+        clipped, count = clip_convex(square, np.array([4]), square[..., 0] - offset)
+        assert count[0] == 4
+        assert polygon_area_2d(clipped)[0] == pytest.approx(0.5 - offset, rel=1e-12)
+    # A diagonal cut of a corner gives a pentagon; clipping everything away gives nothing.
+    clipped, count = clip_convex(square, np.array([4]), square[..., 0] + square[..., 1] - 0.5)
+    assert count[0] == 3 and polygon_area_2d(clipped)[0] == pytest.approx(0.125, rel=1e-12)
+    clipped, count = clip_convex(square, np.array([4]), 0.75 - square[..., 0] - square[..., 1])
+    assert count[0] == 5 and polygon_area_2d(clipped)[0] == pytest.approx(1 - 0.25 ** 2 / 2, rel=1e-12)
+    clipped, count = clip_convex(square, np.array([4]), square[..., 0] - 1.0)
+    assert count[0] == 0
+
+
+def test_cone_overlap_and_surround():
+    light = np.repeat(SQUARE[None], 4, axis=0)
+    tri = lambda pts: np.concatenate([np.asarray(pts, float), np.asarray(pts, float)[-1:]])[None]
+    blockers = np.concatenate([
+        tri([(-0.1, -0.1, 0.5), (0.1, -0.1, 0.5), (0.0, 0.1, 0.5)]),      # small, inside: overlaps
+        tri([(2.0, 2.0, 0.5), (2.1, 2.0, 0.5), (2.0, 2.1, 0.5)]),         # aside: no overlap
+        tri([(-5.0, -5.0, 0.5), (5.0, -5.0, 0.5), (0.0, 5.0, 0.5)]),      # huge: surrounds
+        tri([(0.26, -5.0, 0.5), (5.0, -5.0, 0.5), (5.0, 5.0, 0.5)]),      # beyond the light's edge x=0.25 at z=.5
+    ])
+    overlap, surround = cones_overlap(blockers, np.full(4, 3), light, np.full(4, 4))
+    assert overlap.tolist() == [True, False, True, False]
+    assert surround.tolist() == [False, False, True, False]
+
+
+def test_blocker_beyond_light_is_cut_away():
+    receiver = np.zeros((2, 3))
+    # Light plane z = 1, normal facing down (towards the receiver).
+    origin = np.array([[0, 0, 1.0]] * 2)
+    normal = np.array([[0, 0, -1.0]] * 2)
+    above = np.array([[(0, 0, 2.0), (1, 0, 2.0), (0, 1, 2.0)]])
+    straddling = np.array([[(0, 0, 0.5), (1, 0, 0.5), (0, 0, 1.5)]])
+    polygon, count = blocker_in_front_of_light(receiver, np.concatenate([above, straddling]), origin, normal,
+                                               np.ones(2))
+    assert count[0] == 0
+    assert count[1] == 4 and (polygon[1, :4, 2] <= 1.0 + 1e-12).all()
