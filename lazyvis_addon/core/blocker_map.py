@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import rng
-from .geometry import LightFrames, PLANE_EPS, blocker_in_front_of_light, cones_overlap, receiver_light
+from .geometry import LightFrames, PLANE_EPS, blocker_in_front_of_light, cones_overlap, cross3, receiver_light
 from .progress import Progress
 from .sampling import sample_polygon_solid_angle
 from .settings import Settings
@@ -91,39 +91,44 @@ def test_pairs(surface: SurfacePoints, frames: LightFrames, triangles: np.ndarra
 
 
 def _test_batch(surface, frames, triangles, pixel, triangle, light):
+    """Cone overlap of whole triangles against whole lights, signs only (no normalisation needed).
+
+    The light is not clipped to the receiver's horizon here: that keeps the test cheap and only makes it
+    more conservative (pass 2 clips exactly). Blockers cut by the light's plane take the general path.
+    """
     x = surface.position[pixel]
     normal = surface.geometric_normal[pixel]
-    corners = triangles[triangle]
-    rel = corners - x[:, None]
-    # The receiver's own triangle and anything on or behind its tangent plane cannot shadow it.
+    rel = triangles[triangle] - x[:, None]                                   # (N, 3, 3)
+    scale = np.abs(rel).max(axis=2)                                          # (N, 3)
     heights = np.einsum("nvk,nk->nv", rel, normal)
-    lengths = np.linalg.norm(rel, axis=2)
-    candidate = (triangle != surface.index_triangle[pixel]) & (heights > 1e-7 * lengths).any(axis=1)
-    overlap = np.zeros(len(pixel), bool)
-    umbra = np.zeros(len(pixel), bool)
-    if not candidate.any():
-        return overlap, umbra
-    idx = np.flatnonzero(candidate)
-    setup = receiver_light(x[idx], normal[idx], surface.shading_normal[pixel[idx]], light[idx], frames)
-    lit = setup.count >= 3
-    idx, setup_rows = idx[lit], np.flatnonzero(lit)
-    if len(idx) == 0:
-        return overlap, umbra
-    light_dirs = setup.directions(frames, setup.uv[setup_rows], setup_rows)
-    polygon, count = blocker_in_front_of_light(x[idx], corners[idx], frames.origin[light[idx]],
-                                               frames.normal[light[idx]], setup.side[setup_rows])
-    hit, surround = cones_overlap(polygon, count, light_dirs, setup.count[setup_rows])
-    overlap[idx] = hit
-    # Surround alone is not enough when the blocker was cut by the light's plane: only a whole
-    # triangle in front of the light hides every ray of its cone before the light.
-    umbra[idx] = surround & (count == 3) & _wholly_in_front(corners[idx], frames, light[idx], setup.side[setup_rows])
+    light_normal = frames.normal[light]
+    receiver_height = np.einsum("nk,nk->n", x - frames.origin[light], light_normal)
+    side = np.where(frames.two_sided[light] & (receiver_height < 0), -1.0, 1.0)
+    blocker_height = side[:, None] * (np.einsum("nvk,nk->nv", rel, light_normal) + receiver_height[:, None])
+    light_scale = np.abs(x).max(axis=1) + np.sqrt(frames.area[light])
+    in_front = blocker_height > PLANE_EPS * (scale + np.abs(x).max(axis=1)[:, None])
+    # The receiver's own triangle, anything on or behind its tangent plane, anything behind the light,
+    # and lights the receiver is behind, cannot shadow it.
+    candidate = ((triangle != surface.index_triangle[pixel]) & (heights > 1e-7 * scale).any(axis=1)
+                 & in_front.any(axis=1) & (side * receiver_height > PLANE_EPS * light_scale))
+    blocker_planes = cross3(rel, np.roll(rel, -1, axis=1))                  # (N, 3, 3)
+    triple = np.einsum("nk,nk->n", rel[:, 0], blocker_planes[:, 1])
+    candidate &= np.abs(triple) > 1e-12 * scale.max(axis=1) ** 3             # no solid angle otherwise
+    blocker_planes *= np.sign(triple)[:, None, None]
+    light_rel = frames.vertices[light] - x[:, None]                         # (N, V, 3)
+    light_planes = cross3(light_rel, np.roll(light_rel, -1, axis=1)) * -side[:, None, None]
+    blocker_vs_light = np.einsum("nik,njk->nij", blocker_planes, light_rel)  # (N, 3, V)
+    light_vs_blocker = np.einsum("njk,nik->nji", light_planes, rel)          # (N, V, 3)
+    separated = ((blocker_vs_light.max(axis=2) < 0).any(axis=1) | (light_vs_blocker.max(axis=2) < 0).any(axis=1))
+    overlap = candidate & ~separated
+    umbra = overlap & (blocker_vs_light.min(axis=(1, 2)) > 0) & in_front.all(axis=1)
+    straddle = np.flatnonzero(candidate & ~in_front.all(axis=1))
+    if len(straddle):
+        polygon, count = blocker_in_front_of_light(x[straddle], triangles[triangle[straddle]],
+                                                   frames.origin[light[straddle]], light_normal[straddle],
+                                                   side[straddle])
+        overlap[straddle], _ = cones_overlap(polygon, count, light_rel[straddle], frames.vertex_count[light[straddle]])
     return overlap, umbra
-
-
-def _wholly_in_front(corners, frames, light, side):
-    height = side[:, None] * np.einsum("nvk,nk->nv", corners - frames.origin[light][:, None], frames.normal[light])
-    scale = np.abs(corners).max(axis=(1, 2)) + 1.0
-    return (height > PLANE_EPS * scale[:, None]).all(axis=1)
 
 
 def detect_seeds(surface: SurfacePoints, frames: LightFrames, tracer, settings: Settings,

@@ -74,6 +74,13 @@ def light_frames(lights: Lights) -> LightFrames:
                        np.asarray(lights.radiance, dtype=np.float64), np.asarray(lights.two_sided, bool), area)
 
 
+def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross product over the last axis (any leading shape); cheaper than np.cross on small trailing axes."""
+    ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
+    bx, by, bz = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx], axis=-1)
+
+
 # ------------------------------------------------------------------------------------------------------
 # Convex clipping
 # ------------------------------------------------------------------------------------------------------
@@ -96,40 +103,33 @@ def clip_convex(points: np.ndarray, count: np.ndarray, side: np.ndarray) -> tupl
     clipped_count : (N,) int64, 0 where nothing (or less than a triangle) remains.
     """
     n, k, dims = points.shape
-    index = np.arange(k)
-    valid = index[None, :] < count[:, None]
-    nxt = (index[None, :] + 1) % np.maximum(count[:, None], 1)
-    side_next = np.take_along_axis(side, nxt, axis=1)
-    points_next = np.take_along_axis(points, nxt[:, :, None], axis=1)
+    rows = np.arange(n)
+    last = np.maximum(count - 1, 0)
+    # Each vertex's successor along the polygon: the next slot, except that the last real vertex closes
+    # onto vertex 0.
+    side_next = np.roll(side, -1, axis=1)
+    side_next[rows, last] = side[:, 0]
+    points_next = np.roll(points, -1, axis=1)
+    points_next[rows, last] = points[:, 0]
+    valid = np.arange(k)[None, :] < count[:, None]
     inside = side >= 0.0
-    inside_next = side_next >= 0.0
     emit_vertex = inside & valid
-    emit_cross = (inside != inside_next) & valid
-    denom = side - side_next
-    frac = np.divide(side, denom, out=np.zeros_like(side), where=emit_cross)
-    cross = points + frac[:, :, None] * (points_next - points)
-
-    emitted = emit_vertex.astype(np.int64) + emit_cross
-    start = np.cumsum(emitted, axis=1) - emitted
-    total = emitted.sum(axis=1)
-    out = np.empty((n, k + 1, dims))
-    rows = np.broadcast_to(np.arange(n)[:, None], (n, k))
-    out[rows[emit_vertex], start[emit_vertex]] = points[emit_vertex]
-    cross_slot = start + emit_vertex
-    out[rows[emit_cross], cross_slot[emit_cross]] = cross[emit_cross]
-    _pad_with_last(out, total)
+    emit_cross = (inside != (side_next >= 0.0)) & valid
+    # Candidates interleaved per edge (vertex i, then the crossing on edge i), compacted in order.
+    denom = np.where(emit_cross, side - side_next, 1.0)
+    cross = points + (side / denom)[:, :, None] * (points_next - points)
+    candidates = np.stack([points, cross], axis=2).reshape(n, 2 * k, dims)
+    emit = np.stack([emit_vertex, emit_cross], axis=2).reshape(n, 2 * k)
+    total = emit.sum(axis=1)
+    slot = np.cumsum(emit, axis=1) - 1
+    source_row, source_col = np.nonzero(emit)
+    out = np.zeros((n, k + 1, dims))
+    out[source_row, slot[source_row, source_col]] = candidates[source_row, source_col]
+    # Pad by repeating the last vertex: gather every slot from min(slot, total - 1).
+    fill = np.minimum(np.arange(k + 1)[None, :], np.maximum(total - 1, 0)[:, None])
+    out = np.take_along_axis(out, fill[:, :, None], axis=1)
     total = np.where(total >= 3, total, 0)
     return out, total
-
-
-def _pad_with_last(points: np.ndarray, count: np.ndarray) -> None:
-    """In place: slots at and after ``count`` repeat the last real vertex (vertex 0 when count is 0)."""
-    k = points.shape[1]
-    last = np.clip(count - 1, 0, k - 1)
-    pad = np.arange(k)[None, :] >= count[:, None]
-    if pad.any():
-        fill = points[np.arange(len(points)), last]
-        points[pad] = np.broadcast_to(fill[:, None, :], points.shape)[pad]
 
 
 def polygon_area_2d(uv: np.ndarray) -> np.ndarray:

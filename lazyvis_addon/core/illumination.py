@@ -156,20 +156,41 @@ def _subtract_blocker(uv, count, couple, lines, valid, min_area):
     split = np.flatnonzero(~separated & ~covered)
     drop = ~separated
 
-    remainder, remainder_count = uv[split], count[split]
+    # Peel off, edge by edge, the part of the piece outside that edge; what survives every edge lies
+    # inside the blocker's cone and is dropped. Only pieces straddling an edge are clipped by it.
+    remainder, remainder_count, owner = uv[split], count[split], couple[split]
+    edge_valid, edge_lines = valid[split], lines[split]
+    last_edge = int(np.flatnonzero(edge_valid.any(axis=0)).max()) if len(split) else -1
     out_uv, out_count, out_couple = [], [], []
-    for i in range(n_edges):  # blocker edges: 3 or 4
-        edge_ok = valid[split, i]
-        side = _side(lines[split, i], remainder)
-        outside, outside_count = clip_convex(remainder, remainder_count, -side)
-        outside_count = np.where(edge_ok, outside_count, 0)
-        inside, inside_count = clip_convex(remainder, remainder_count, side)
-        remainder = np.where(edge_ok[:, None, None], inside, _pad_to(remainder, inside.shape[1]))
-        remainder_count = np.where(edge_ok, inside_count, remainder_count)
-        big = (outside_count >= 3) & (np.abs(polygon_area_2d(outside)) > min_area[couple[split]])
-        out_uv.append(outside[big])
-        out_count.append(outside_count[big])
-        out_couple.append(couple[split][big])
+    for i in range(last_edge + 1):  # blocker edges: 3, or 4 for a blocker cut by the light's plane
+        side = _side(edge_lines[:, i], remainder)
+        real = np.arange(remainder.shape[1])[None, :] < remainder_count[:, None]
+        any_out = (np.where(real, side, np.inf) < 0).any(axis=1)
+        all_out = (np.where(real, side, -np.inf) <= 0).all(axis=1)
+        live = edge_valid[:, i] & (remainder_count >= 3)
+        whole = np.flatnonzero(live & all_out)            # entirely outside this edge: emit it whole
+        cut = np.flatnonzero(live & any_out & ~all_out)    # straddles: emit the outside part, keep the inside
+        if len(whole):
+            out_uv.append(remainder[whole])
+            out_count.append(remainder_count[whole])
+            out_couple.append(owner[whole])
+        if len(cut):
+            outside, outside_count = clip_convex(remainder[cut], remainder_count[cut], -side[cut])
+            big = (outside_count >= 3) & (np.abs(polygon_area_2d(outside)) > min_area[owner[cut]])
+            out_uv.append(outside[big])
+            out_count.append(outside_count[big])
+            out_couple.append(owner[cut][big])
+        if i == last_edge:
+            break
+        remainder_count = remainder_count.copy()
+        remainder_count[whole] = 0
+        if len(cut):
+            inside, inside_count = clip_convex(remainder[cut], remainder_count[cut], side[cut])
+            remainder = _pad_to(remainder, inside.shape[1])
+            remainder[cut] = inside
+            remainder_count[cut] = inside_count
+    if not out_uv:
+        return np.zeros((0, 3, 2)), np.zeros(0, np.int64), np.zeros(0, np.int64), drop
     width = max(p.shape[1] for p in out_uv)
     new_uv = np.concatenate([_pad_to(p, width) for p in out_uv])
     new_count = np.concatenate(out_count)
