@@ -14,6 +14,7 @@ import numpy as np
 
 from . import rng
 from .geometry import LightFrames, PLANE_EPS, blocker_in_front_of_light, cones_overlap, cross3, receiver_light
+from .parallel import map_batches, thread_count
 from .progress import Progress
 from .sampling import sample_polygon_solid_angle
 from .settings import Settings
@@ -70,7 +71,7 @@ class BlockerMap:
 
 
 def test_pairs(surface: SurfacePoints, frames: LightFrames, triangles: np.ndarray, pixel: np.ndarray,
-               triangle: np.ndarray, light: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+               triangle: np.ndarray, light: np.ndarray, threads: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Does blocker ``triangle`` overlap ``light`` seen from the visible point of ``pixel``?
 
     Parameters
@@ -80,14 +81,15 @@ def test_pairs(surface: SurfacePoints, frames: LightFrames, triangles: np.ndarra
     Returns
     -------
     overlap : (N,) bool   conservative (touching counts).
-    umbra : (N,) bool     the blocker alone hides the whole (horizon-clipped) light.
+    umbra : (N,) bool     the blocker alone hides the whole light.
     """
-    overlap = np.zeros(len(pixel), bool)
-    umbra = np.zeros(len(pixel), bool)
-    for start in range(0, len(pixel), TEST_BATCH):  # batches of tests, not single tests
-        rows = slice(start, start + TEST_BATCH)
-        overlap[rows], umbra[rows] = _test_batch(surface, frames, triangles, pixel[rows], triangle[rows], light[rows])
-    return overlap, umbra
+    starts = range(0, len(pixel), TEST_BATCH)
+    parts = map_batches(lambda start: _test_batch(surface, frames, triangles, pixel[start:start + TEST_BATCH],
+                                                  triangle[start:start + TEST_BATCH], light[start:start + TEST_BATCH]),
+                        starts, threads)
+    if not parts:
+        return np.zeros(0, bool), np.zeros(0, bool)
+    return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
 
 
 def _test_batch(surface, frames, triangles, pixel, triangle, light):
@@ -142,43 +144,47 @@ def detect_seeds(surface: SurfacePoints, frames: LightFrames, tracer, settings: 
     """
     n_lights = len(frames)
     samples = settings.shadow_rays
-    found_pixel, found_triangle, found_light = [], [], []
-    rays = 0
     hit_pixels = np.flatnonzero(surface.hit)
     batch = max(1, settings.pixel_batch // max(1, samples * n_lights) * 4)
-    progress.begin_stage("Blocker detection", len(hit_pixels))
-    for start in range(0, len(hit_pixels), batch):  # batches of pixels
+    starts = list(range(0, len(hit_pixels), batch))
+
+    def detect(start: int):
         pixels = hit_pixels[start:start + batch]
         pix = np.repeat(pixels, n_lights)
         lig = np.tile(np.arange(n_lights), len(pixels))
         setup = receiver_light(surface.position[pix], surface.geometric_normal[pix], surface.shading_normal[pix],
                                lig, frames)
         lit = np.flatnonzero(setup.count >= 3)
-        if len(lit):
-            sample = np.tile(np.arange(samples), len(lit))
-            rows = np.repeat(lit, samples)
-            pix_s, lig_s = pix[rows], lig[rows]
-            u = rng.uniforms(settings.seed, settings.frame, rng.STREAM_SHADOW_RAYS, pixel_global[pix_s],
-                             lig_s * samples + sample, 2)
-            u = rng.stratified_2d(u, sample, samples)
-            polygons = setup.directions(frames, setup.uv[rows], rows)
-            direction, pdf, _ = sample_polygon_solid_angle(polygons, setup.count[rows], u)
-            normal = surface.geometric_normal[pix_s]
-            origin = surface.position[pix_s] + surface.offset[pix_s, None] * normal
-            # Distance to the light's plane along the ray; stop a little short so the light's own
-            # surroundings (a ceiling it is set into) are not reported.
-            toward = -setup.side[rows] * np.einsum("nk,nk->n", direction, frames.normal[lig_s])
-            height = setup.side[rows] * np.einsum("nk,nk->n", origin - frames.origin[lig_s], frames.normal[lig_s])
-            good = (pdf > 0) & (toward > 0) & (height > 0)
-            tfar = np.where(good, height / np.where(good, toward, 1.0), 0.0) * (1.0 - 1e-6)
-            hits = tracer.intersect(origin[good], direction[good], tfar[good])
-            rays += int(good.sum())
-            blocked = (hits.index_triangle >= 0) & (hits.index_triangle != surface.index_triangle[pix_s[good]])
-            found_pixel.append(pix_s[good][blocked])
-            found_triangle.append(hits.index_triangle[blocked])
-            found_light.append(lig_s[good][blocked])
-        progress.advance(len(pixels))
+        if len(lit) == 0:
+            return None
+        sample = np.tile(np.arange(samples), len(lit))
+        rows = np.repeat(lit, samples)
+        pix_s, lig_s = pix[rows], lig[rows]
+        u = rng.uniforms(settings.seed, settings.frame, rng.STREAM_SHADOW_RAYS, pixel_global[pix_s],
+                         lig_s * samples + sample, 2)
+        u = rng.stratified_2d(u, sample, samples)
+        polygons = setup.directions(frames, setup.uv[rows], rows)
+        direction, pdf, _ = sample_polygon_solid_angle(polygons, setup.count[rows], u)
+        normal = surface.geometric_normal[pix_s]
+        origin = surface.position[pix_s] + surface.offset[pix_s, None] * normal
+        # Distance to the light's plane along the ray; stop a little short so the light's own
+        # surroundings (a ceiling it is set into) are not reported.
+        toward = -setup.side[rows] * np.einsum("nk,nk->n", direction, frames.normal[lig_s])
+        height = setup.side[rows] * np.einsum("nk,nk->n", origin - frames.origin[lig_s], frames.normal[lig_s])
+        good = (pdf > 0) & (toward > 0) & (height > 0)
+        tfar = np.where(good, height / np.where(good, toward, 1.0), 0.0) * (1.0 - 1e-6)
+        hits = tracer.intersect(origin[good], direction[good], tfar[good])
+        blocked = (hits.index_triangle >= 0) & (hits.index_triangle != surface.index_triangle[pix_s[good]])
+        return pix_s[good][blocked], hits.index_triangle[blocked], lig_s[good][blocked], int(good.sum())
+
+    progress.begin_stage("Blocker detection", len(hit_pixels))
+    units = [len(hit_pixels[start:start + batch]) for start in starts]
+    found = [f for f in map_batches(detect, starts, thread_count(settings.threads), progress, units) if f is not None]
     progress.end_stage()
+    found_pixel = [f[0] for f in found]
+    found_triangle = [f[1] for f in found]
+    found_light = [f[2] for f in found]
+    rays = sum(f[3] for f in found)
     if not found_pixel:
         empty = np.zeros(0, np.int64)
         return empty, empty, empty, rays
@@ -237,7 +243,8 @@ def flood_fill(surface: SurfacePoints, frames: LightFrames, triangles: np.ndarra
             stats["fill_iterations"] += 1
             stats["fill_tests"] += len(frontier_pixel)
             pair = frontier_pair + chunk_start
-            ok, hidden = test_pairs(surface, frames, triangles, frontier_pixel, pair_triangle[pair], pair_light[pair])
+            ok, hidden = test_pairs(surface, frames, triangles, frontier_pixel, pair_triangle[pair], pair_light[pair],
+                                    thread_count(settings.threads))
             stored.append(np.stack([frontier_pixel[ok], pair[ok]]))
             umbra[frontier_pixel[hidden], pair_light[pair[hidden]]] = True
             frontier_pixel, frontier_pair = _next_ring(frontier_pixel[ok], frontier_pair[ok], offsets, height, width,
@@ -324,7 +331,7 @@ def reference_blocker_map(surface: SurfacePoints, frames: LightFrames, triangles
             pix = np.repeat(pixels, len(candidates))
             tri = np.tile(candidates, len(pixels))
             lig = np.full(len(pix), light)
-            ok, hidden = test_pairs(surface, frames, triangles, pix, tri, lig)
+            ok, hidden = test_pairs(surface, frames, triangles, pix, tri, lig, thread_count(settings.threads))
             tests += len(pix)
             stored.append(np.stack([pix[ok], tri[ok], lig[ok]]))
             umbra[pix[hidden], light] = True

@@ -115,16 +115,17 @@ def clip_convex(points: np.ndarray, count: np.ndarray, side: np.ndarray) -> tupl
     inside = side >= 0.0
     emit_vertex = inside & valid
     emit_cross = (inside != (side_next >= 0.0)) & valid
-    # Candidates interleaved per edge (vertex i, then the crossing on edge i), compacted in order.
-    denom = np.where(emit_cross, side - side_next, 1.0)
-    cross = points + (side / denom)[:, :, None] * (points_next - points)
-    candidates = np.stack([points, cross], axis=2).reshape(n, 2 * k, dims)
-    emit = np.stack([emit_vertex, emit_cross], axis=2).reshape(n, 2 * k)
-    total = emit.sum(axis=1)
-    slot = np.cumsum(emit, axis=1) - 1
-    source_row, source_col = np.nonzero(emit)
+    # Output order per edge i: vertex i (if inside), then the crossing on edge i (if any).
+    emitted = emit_vertex.astype(np.int64) + emit_cross
+    start = np.cumsum(emitted, axis=1) - emitted
+    total = emitted.sum(axis=1)
     out = np.zeros((n, k + 1, dims))
-    out[source_row, slot[source_row, source_col]] = candidates[source_row, source_col]
+    row, col = np.nonzero(emit_vertex)
+    out[row, start[row, col]] = points[row, col]
+    row, col = np.nonzero(emit_cross)
+    denom = side[row, col] - side_next[row, col]
+    frac = (side[row, col] / denom)[:, None]
+    out[row, start[row, col] + emit_vertex[row, col]] = points[row, col] + frac * (points_next[row, col] - points[row, col])
     # Pad by repeating the last vertex: gather every slot from min(slot, total - 1).
     fill = np.minimum(np.arange(k + 1)[None, :], np.maximum(total - 1, 0)[:, None])
     out = np.take_along_axis(out, fill[:, :, None], axis=1)
@@ -290,10 +291,10 @@ def projected_solid_angle(directions: np.ndarray, normal: np.ndarray) -> np.ndar
     -------
     (N,) float64, steradians, >= 0: irradiance / radiance for a constant-radiance polygon.
     """
-    unit = directions / np.maximum(np.linalg.norm(directions, axis=2, keepdims=True), 1e-300)
+    unit = directions / np.maximum(np.sqrt(np.einsum("nkd,nkd->nk", directions, directions)), 1e-300)[:, :, None]
     nxt = np.roll(unit, -1, axis=1)
-    cross = np.cross(unit, nxt)
-    sin = np.linalg.norm(cross, axis=2)
+    cross = cross3(unit, nxt)
+    sin = np.sqrt(np.einsum("nkd,nkd->nk", cross, cross))
     cos = np.einsum("nkd,nkd->nk", unit, nxt)
     angle = np.arctan2(sin, cos)
     ratio = np.where(sin > 1e-15, angle / np.maximum(sin, 1e-300), 1.0)

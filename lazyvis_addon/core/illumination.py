@@ -96,22 +96,23 @@ def visible_pieces(surface: SurfacePoints, frames: LightFrames, triangles: np.nd
     min_area = SLIVER_FRACTION * frames.area[couples.light]
 
     rounds = int(rank.max()) + 1
+    blockers_of_couple = np.bincount(entry_couple, minlength=len(couple_pixel))
+    finished = []
     for k in range(rounds):  # rounds: the k-th blocker of every couple at once
+        # Pieces of couples with no k-th blocker are final: set them aside so rounds stop copying them.
+        done = blockers_of_couple[pieces_couple] <= k
+        if done.any():
+            finished.append((pieces_uv[done], pieces_count[done], pieces_couple[done]))
+            pieces_uv, pieces_count, pieces_couple = pieces_uv[~done], pieces_count[~done], pieces_couple[~done]
         this = np.flatnonzero(rank == k)
         entry_of_couple = np.full(len(couple_pixel), -1, np.int64)
         entry_of_couple[entry_couple[this]] = this
         entry = entry_of_couple[pieces_couple]
-        affected = np.flatnonzero(entry >= 0)
-        if len(affected) == 0:
-            continue
-        new_uv, new_count, new_couple, drop = _subtract_blocker(
-            pieces_uv[affected], pieces_count[affected], pieces_couple[affected],
-            lines[entry[affected]], line_valid[entry[affected]], min_area)
-        keep_piece = np.ones(len(pieces_count), bool)
-        keep_piece[affected[drop]] = False
+        new_uv, new_count, new_couple, drop = _subtract_blocker(pieces_uv, pieces_count, pieces_couple,
+                                                               lines[entry], line_valid[entry], min_area)
         pieces_uv, pieces_count, pieces_couple = _concat_pieces(
-            (pieces_uv[keep_piece], pieces_count[keep_piece], pieces_couple[keep_piece]),
-            (new_uv, new_count, new_couple))
+            (pieces_uv[~drop], pieces_count[~drop], pieces_couple[~drop]), (new_uv, new_count, new_couple))
+    pieces_uv, pieces_count, pieces_couple = _concat_pieces(*finished, (pieces_uv, pieces_count, pieces_couple))
     return VisiblePieces(couples, couple_pixel, pieces_uv, pieces_count, pieces_couple, rounds)
 
 
@@ -218,13 +219,23 @@ def _concat_pieces(*parts):
 # ------------------------------------------------------------------------------------------------------
 
 def analytic(pieces: VisiblePieces, surface: SurfacePoints, frames: LightFrames) -> np.ndarray:
-    """Lambert's polygon formula over every visible piece (exact when no blocker was missed)."""
+    """Lambert's polygon formula over every visible piece (exact when no blocker was missed).
+
+    Evaluated in each light's own frame, where a piece vertex seen from the receiver is simply
+    (u - u_x, v - v_x, -height): no per-vertex change of basis.
+    """
     couples = pieces.couples
     if len(pieces.count) == 0:
         return np.zeros(len(pieces.couple_pixel))
-    directions = couples.directions(frames, pieces.uv, pieces.couple)
-    normal = surface.shading_normal[pieces.couple_pixel[pieces.couple]]
-    per_piece = projected_solid_angle(directions, normal)
+    local = couples.local[pieces.couple]
+    directions = np.concatenate([pieces.uv - local[:, None, :2],
+                                 np.broadcast_to(-local[:, None, 2:3], pieces.uv.shape[:2] + (1,))], axis=2)
+    light = couples.light
+    normal = surface.shading_normal[pieces.couple_pixel]
+    normal_local = np.stack([np.einsum("nk,nk->n", normal, frames.tangent[light]),
+                             np.einsum("nk,nk->n", normal, frames.bitangent[light]),
+                             np.einsum("nk,nk->n", normal, frames.normal[light])], axis=1)
+    per_piece = projected_solid_angle(directions, normal_local[pieces.couple])
     return np.bincount(pieces.couple, weights=per_piece, minlength=len(pieces.couple_pixel))
 
 

@@ -15,6 +15,7 @@ import numpy as np
 from .blocker_map import BlockerMap, build_blocker_map, reference_blocker_map
 from .camera import camera_rays, planar_depth, window_pixels
 from .geometry import light_frames
+from .parallel import map_batches, thread_count
 from .illumination import analytic, outgoing_radiance, reduced_domain_mc, standard_mc, visible_pieces
 from .progress import Progress
 from .scene import Scene
@@ -163,11 +164,14 @@ def _illuminate(surface: SurfacePoints, frames, triangles, tracer, blockers: Blo
     entry_bounds = None
     if blockers is not None:
         entry_bounds = np.searchsorted(blockers.pixel, np.arange(0, n_pixels + batch, batch))
-    progress.begin_stage("Illumination", n_pixels)
-    for index, start in enumerate(range(0, n_pixels, batch)):  # batches of pixels
+    starts = list(range(0, n_pixels, batch))
+
+    def shade(index: int):
+        start = starts[index]
         stop = min(start + batch, n_pixels)
         part = surface.take(np.arange(start, stop))
         globals_ = pixel_global[start:stop]
+        pieces = None
         if settings.integrator == "standard_mc":
             projected, couples, couple_pixel, _ = standard_mc(part, frames, tracer, settings, globals_)
         else:
@@ -175,15 +179,22 @@ def _illuminate(surface: SurfacePoints, frames, triangles, tracer, blockers: Blo
             local = BlockerMap(blockers.pixel[lo:hi] - start, blockers.light[lo:hi], blockers.triangle[lo:hi],
                                blockers.umbra[start:stop])
             pieces = visible_pieces(part, frames, triangles, local)
-            stats["pieces"] += len(pieces.count)
-            stats["max_blockers_per_couple"] = max(stats["max_blockers_per_couple"], pieces.max_rounds)
             couples, couple_pixel = pieces.couples, pieces.couple_pixel
             if settings.integrator == "reduced_mc":
                 projected = reduced_domain_mc(pieces, part, frames, settings, globals_)
             else:
                 projected = analytic(pieces, part, frames)
-        radiance[start:stop] = outgoing_radiance(part, frames, couples, couple_pixel, projected)
-        progress.advance(stop - start)
+        result = outgoing_radiance(part, frames, couples, couple_pixel, projected)
+        return start, stop, result, (0 if pieces is None else len(pieces.count)), \
+            (0 if pieces is None else pieces.max_rounds)
+
+    progress.begin_stage("Illumination", n_pixels)
+    units = [min(start + batch, n_pixels) - start for start in starts]
+    for start, stop, result, n_pieces, rounds in map_batches(shade, range(len(starts)),
+                                                             thread_count(settings.threads), progress, units):
+        radiance[start:stop] = result
+        stats["pieces"] += n_pieces
+        stats["max_blockers_per_couple"] = max(stats["max_blockers_per_couple"], rounds)
     progress.end_stage()
     return radiance, stats
 

@@ -40,6 +40,8 @@ class Settings:
         Working memory the passes may use for their batches; a budget too small to render fails clearly.
     pixel_batch : int
         Pixels per batch in pass 2 and for camera rays (progress and cancel granularity).
+    threads : int
+        Worker threads for the batched stages; 0 means one per core.
     window_margin : int
         When rendering a window (border or tile), pass 1 also covers this many pixels of the frame
         around it, so that blockers found just outside the window flood into it as they would in the
@@ -58,6 +60,7 @@ class Settings:
     memory_budget_mb: float = 2048.0
     pixel_batch: int = 16384
     window_margin: int = 32
+    threads: int = 0
 
     def __post_init__(self) -> None:
         if self.integrator not in INTEGRATORS:
@@ -68,6 +71,8 @@ class Settings:
             value = getattr(self, name)
             if not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be a positive integer, not {value!r}")
+        if not isinstance(self.threads, int) or self.threads < 0:
+            raise ValueError(f"threads must be a non-negative integer, not {self.threads!r}")
         if not isinstance(self.window_margin, int) or self.window_margin < 0:
             raise ValueError(f"window_margin must be a non-negative integer, not {self.window_margin!r}")
         if not self.memory_budget_mb > 0:

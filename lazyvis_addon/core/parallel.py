@@ -1,0 +1,48 @@
+"""Batches on a small thread pool: numpy and Embree release the GIL inside their array calls, so two
+threads keep both cores of a workstation busy. Progress and cancel stay on the calling thread."""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+from typing import Callable, Iterable, Sequence
+
+from .progress import Progress
+
+
+def thread_count(requested: int) -> int:
+    """``requested`` threads, or one per core (at most 8) when 0."""
+    return requested if requested > 0 else min(os.cpu_count() or 1, 8)
+
+
+def map_batches(function: Callable, batches: Sequence, threads: int, progress: Progress | None = None,
+                units: Iterable[int] | None = None) -> list:
+    """``[function(b) for b in batches]`` computed on ``threads`` threads, results in order.
+
+    After each result the progress object advances by that batch's units (and may raise RenderCancelled,
+    which cancels the batches not yet started; running ones finish first, each well under a second).
+    """
+    units = list(units) if units is not None else [1] * len(batches)
+    if threads <= 1 or len(batches) <= 1:
+        results = []
+        for batch, unit in zip(batches, units):
+            results.append(function(batch))
+            if progress is not None:
+                progress.advance(unit)
+        return results
+    pool = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="lazyvis")
+    try:
+        # A bounded window of submitted batches keeps memory to a few batches in flight.
+        window = 2 * threads
+        futures = [pool.submit(function, batch) for batch in batches[:window]]
+        results = []
+        for index, unit in enumerate(units):
+            results.append(futures[index].result())
+            futures[index] = None
+            if index + window < len(batches):
+                futures.append(pool.submit(function, batches[index + window]))
+            if progress is not None:
+                progress.advance(unit)
+        return results
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
