@@ -89,7 +89,7 @@ def test_blocker_beyond_light_is_cut_away():
     normal = np.array([[0, 0, -1.0]] * 2)
     above = np.array([[(0, 0, 2.0), (1, 0, 2.0), (0, 1, 2.0)]])
     straddling = np.array([[(0, 0, 0.5), (1, 0, 0.5), (0, 0, 1.5)]])
-    polygon, count = blocker_in_front_of_light(receiver, np.concatenate([above, straddling]), origin, normal,
-                                               np.ones(2))
+    polygon, count = blocker_in_front_of_light(receiver, np.concatenate([above, straddling]), np.array([3, 3]),
+                                               origin, normal, np.ones(2))
     assert count[0] == 0
     assert count[1] == 4 and (polygon[1, :4, 2] <= 1.0 + 1e-12).all()

@@ -10,7 +10,8 @@ import pytest
 
 from lazyvis_addon.core import Camera, Lights, Materials, Progress, RenderCancelled, Scene, Settings, render
 from lazyvis_addon.core import demo_scenes
-from lazyvis_addon.core.blocker_map import BlockerMap, detect_seeds, reference_blocker_map
+from lazyvis_addon.core.blocker_map import BlockerMap, detect_seeds
+from lazyvis_addon.core.blockers import BlockerPolygons
 from lazyvis_addon.core.demo_scenes import plane_under_light, quad_triangles
 from lazyvis_addon.core.geometry import light_frames, projected_solid_angle
 from lazyvis_addon.core.illumination import analytic, outgoing_radiance, visible_pieces
@@ -72,11 +73,11 @@ def test_full_cover_and_half_plane_at_a_receiver():
         surface = _primary(scene, tracer, scene_extent(scene), Settings(), Progress())
         np.testing.assert_allclose(surface.position[0], 0.0, atol=1e-6)
         frames = light_frames(scene.lights)
-        n_tri = len(scene.triangles)
-        tri = np.arange(2, n_tri)
-        blockers = BlockerMap.from_entries(np.zeros(len(tri), int), np.zeros(len(tri), int), tri,
+        polygons = BlockerPolygons.from_triangles(scene.triangles)
+        ids = np.unique(polygons.of_triangle[2:])  # every blocker but the plane's
+        blockers = BlockerMap.from_entries(np.zeros(len(ids), int), np.zeros(len(ids), int), ids,
                                            np.zeros((1, 1), bool))
-        pieces = visible_pieces(surface, frames, scene.triangles, blockers)
+        pieces = visible_pieces(surface, frames, polygons, blockers)
         projected = analytic(pieces, surface, frames)
         results.append(projected.sum())
     full, covered, halved = results
@@ -142,10 +143,11 @@ def test_seeds_alone_are_not_enough(boxes_scene, boxes_reference):
     frames = light_frames(scene.lights)
     h, w = scene.camera.window_shape
     pixel_global = np.arange(h * w)
-    seed_pixel, seed_tri, seed_light, _ = detect_seeds(surface, frames, tracer, Settings(shadow_rays=4),
-                                                       pixel_global, Progress())
-    seeds_only = BlockerMap.from_entries(seed_pixel, seed_light, seed_tri, np.zeros((h * w, len(frames)), bool))
-    pieces = visible_pieces(surface, frames, scene.triangles, seeds_only)
+    polygons = BlockerPolygons.from_triangles(scene.triangles)
+    seed_pixel, seed_blocker, seed_light, _ = detect_seeds(surface, frames, polygons, tracer, Settings(shadow_rays=4),
+                                                           pixel_global, Progress())
+    seeds_only = BlockerMap.from_entries(seed_pixel, seed_light, seed_blocker, np.zeros((h * w, len(frames)), bool))
+    pieces = visible_pieces(surface, frames, polygons, seeds_only)
     radiance = outgoing_radiance(surface, frames, pieces.couples, pieces.couple_pixel,
                                  analytic(pieces, surface, frames))
     ref = boxes_reference.combined[..., :3].reshape(-1, 3)

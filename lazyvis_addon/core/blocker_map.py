@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import rng
+from .blockers import BlockerPolygons
 from .geometry import LightFrames, PLANE_EPS, blocker_in_front_of_light, cones_overlap, cross3, receiver_light
 from .parallel import map_batches, thread_count
 from .progress import Progress
@@ -35,14 +36,14 @@ class BlockerMap:
     ----------
     pixel : (E,) int64       window-local pixel index (row-major, row 0 = top).
     light : (E,) int64
-    triangle : (E,) int64    blocker triangle.
+    blocker : (E,) int64     blocker polygon (see ``BlockerPolygons``).
     umbra : (N, L) bool      the light is hidden at this pixel (one blocker surrounds it).
     stats : dict             rays cast, seeds, pairs, tests, fill iterations.
     """
 
     pixel: np.ndarray
     light: np.ndarray
-    triangle: np.ndarray
+    blocker: np.ndarray
     umbra: np.ndarray
     stats: dict = field(default_factory=dict)
 
@@ -55,28 +56,26 @@ class BlockerMap:
         renumber[inner] = np.arange(len(inner))
         pixel = renumber[self.pixel]
         keep = pixel >= 0
-        return BlockerMap(pixel[keep], self.light[keep], self.triangle[keep], self.umbra[inner], dict(self.stats))
+        return BlockerMap(pixel[keep], self.light[keep], self.blocker[keep], self.umbra[inner], dict(self.stats))
 
     @classmethod
-    def from_entries(cls, pixel, light, triangle, umbra, stats=None) -> "BlockerMap":
-        """Sort and de-duplicate (pixel, light, triangle) entries."""
-        pixel, light, triangle = (np.asarray(a, dtype=np.int64) for a in (pixel, light, triangle))
+    def from_entries(cls, pixel, light, blocker, umbra, stats=None) -> "BlockerMap":
+        """Sort and de-duplicate (pixel, light, blocker) entries."""
+        pixel, light, blocker = (np.asarray(a, dtype=np.int64) for a in (pixel, light, blocker))
         n_lights = umbra.shape[1]
-        n_tri = int(triangle.max()) + 1 if len(triangle) else 1
-        key = (pixel * n_lights + light) * n_tri + triangle
-        key = np.unique(key)
-        triangle = key % n_tri
-        pixel_light = key // n_tri
-        return cls(pixel_light // n_lights, pixel_light % n_lights, triangle, umbra, dict(stats or {}))
+        n_blockers = int(blocker.max()) + 1 if len(blocker) else 1
+        key = np.unique((pixel * n_lights + light) * n_blockers + blocker)
+        pixel_light = key // n_blockers
+        return cls(pixel_light // n_lights, pixel_light % n_lights, key % n_blockers, umbra, dict(stats or {}))
 
 
-def test_pairs(surface: SurfacePoints, frames: LightFrames, triangles: np.ndarray, pixel: np.ndarray,
-               triangle: np.ndarray, light: np.ndarray, threads: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """Does blocker ``triangle`` overlap ``light`` seen from the visible point of ``pixel``?
+def test_pairs(surface: SurfacePoints, frames: LightFrames, blockers: BlockerPolygons, pixel: np.ndarray,
+               blocker: np.ndarray, light: np.ndarray, threads: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Does ``blocker`` overlap ``light`` seen from the visible point of ``pixel``?
 
     Parameters
     ----------
-    surface : SurfacePoints of the whole window; pixel, triangle, light : (N,) int64.
+    surface : SurfacePoints of the whole window; pixel, blocker, light : (N,) int64.
 
     Returns
     -------
@@ -84,24 +83,25 @@ def test_pairs(surface: SurfacePoints, frames: LightFrames, triangles: np.ndarra
     umbra : (N,) bool     the blocker alone hides the whole light.
     """
     starts = range(0, len(pixel), TEST_BATCH)
-    parts = map_batches(lambda start: _test_batch(surface, frames, triangles, pixel[start:start + TEST_BATCH],
-                                                  triangle[start:start + TEST_BATCH], light[start:start + TEST_BATCH]),
+    parts = map_batches(lambda start: _test_batch(surface, frames, blockers, pixel[start:start + TEST_BATCH],
+                                                  blocker[start:start + TEST_BATCH], light[start:start + TEST_BATCH]),
                         starts, threads)
     if not parts:
         return np.zeros(0, bool), np.zeros(0, bool)
     return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
 
 
-def _test_batch(surface, frames, triangles, pixel, triangle, light):
-    """Cone overlap of whole triangles against whole lights, signs only (no normalisation needed).
+def _test_batch(surface, frames, blockers, pixel, blocker, light):
+    """Cone overlap of whole blocker polygons against whole lights, signs only (no normalisation needed).
 
     The light is not clipped to the receiver's horizon here: that keeps the test cheap and only makes it
     more conservative (pass 2 clips exactly). Blockers cut by the light's plane take the general path.
     """
     x = surface.position[pixel]
     normal = surface.geometric_normal[pixel]
-    rel = triangles[triangle] - x[:, None]                                   # (N, 3, 3)
-    scale = np.abs(rel).max(axis=2)                                          # (N, 3)
+    count = blockers.count[blocker]
+    rel = blockers.vertices[blocker] - x[:, None]                           # (N, 4, 3), triangles padded
+    scale = np.abs(rel).max(axis=2)                                          # (N, 4)
     heights = np.einsum("nvk,nk->nv", rel, normal)
     light_normal = frames.normal[light]
     receiver_height = np.einsum("nk,nk->n", x - frames.origin[light], light_normal)
@@ -109,37 +109,43 @@ def _test_batch(surface, frames, triangles, pixel, triangle, light):
     blocker_height = side[:, None] * (np.einsum("nvk,nk->nv", rel, light_normal) + receiver_height[:, None])
     light_scale = np.abs(x).max(axis=1) + np.sqrt(frames.area[light])
     in_front = blocker_height > PLANE_EPS * (scale + np.abs(x).max(axis=1)[:, None])
-    # The receiver's own triangle, anything on or behind its tangent plane, anything behind the light,
+    # The receiver's own blocker, anything on or behind its tangent plane, anything behind the light,
     # and lights the receiver is behind, cannot shadow it.
-    candidate = ((triangle != surface.index_triangle[pixel]) & (heights > 1e-7 * scale).any(axis=1)
+    own = blockers.of_triangle[surface.index_triangle[pixel]]
+    candidate = ((blocker != own) & (heights > 1e-7 * scale).any(axis=1)
                  & in_front.any(axis=1) & (side * receiver_height > PLANE_EPS * light_scale))
-    blocker_planes = cross3(rel, np.roll(rel, -1, axis=1))                  # (N, 3, 3)
+    blocker_planes = cross3(rel, np.roll(rel, -1, axis=1))                  # (N, 4, 3)
     triple = np.einsum("nk,nk->n", rel[:, 0], blocker_planes[:, 1])
     candidate &= np.abs(triple) > 1e-12 * scale.max(axis=1) ** 3             # no solid angle otherwise
     blocker_planes *= np.sign(triple)[:, None, None]
+    # A padded triangle's edge 2 joins its last vertex to itself: no plane.
+    edge_valid = ~((count[:, None] == 3) & (np.arange(4)[None, :] == 2))
     light_rel = frames.vertices[light] - x[:, None]                         # (N, V, 3)
     light_planes = cross3(light_rel, np.roll(light_rel, -1, axis=1)) * -side[:, None, None]
-    blocker_vs_light = np.einsum("nik,njk->nij", blocker_planes, light_rel)  # (N, 3, V)
-    light_vs_blocker = np.einsum("njk,nik->nji", light_planes, rel)          # (N, V, 3)
-    separated = ((blocker_vs_light.max(axis=2) < 0).any(axis=1) | (light_vs_blocker.max(axis=2) < 0).any(axis=1))
+    blocker_vs_light = np.einsum("nik,njk->nij", blocker_planes, light_rel)  # (N, 4, V)
+    light_vs_blocker = np.einsum("njk,nik->nji", light_planes, rel)          # (N, V, 4)
+    separated = (((blocker_vs_light.max(axis=2) < 0) & edge_valid).any(axis=1)
+                 | (light_vs_blocker.max(axis=2) < 0).any(axis=1))
     overlap = candidate & ~separated
-    umbra = overlap & (blocker_vs_light.min(axis=(1, 2)) > 0) & in_front.all(axis=1)
+    inside = np.where(edge_valid, blocker_vs_light.min(axis=2), np.inf).min(axis=1) > 0
+    umbra = overlap & inside & in_front.all(axis=1)
     straddle = np.flatnonzero(candidate & ~in_front.all(axis=1))
     if len(straddle):
-        polygon, count = blocker_in_front_of_light(x[straddle], triangles[triangle[straddle]],
-                                                   frames.origin[light[straddle]], light_normal[straddle],
-                                                   side[straddle])
-        overlap[straddle], _ = cones_overlap(polygon, count, light_rel[straddle], frames.vertex_count[light[straddle]])
+        polygon, clipped_count = blocker_in_front_of_light(x[straddle], blockers.vertices[blocker[straddle]],
+                                                           count[straddle], frames.origin[light[straddle]],
+                                                           light_normal[straddle], side[straddle])
+        overlap[straddle], _ = cones_overlap(polygon, clipped_count, light_rel[straddle],
+                                             frames.vertex_count[light[straddle]])
     return overlap, umbra
 
 
-def detect_seeds(surface: SurfacePoints, frames: LightFrames, tracer, settings: Settings,
+def detect_seeds(surface: SurfacePoints, frames: LightFrames, blockers: BlockerPolygons, tracer, settings: Settings,
                  pixel_global: np.ndarray, progress: Progress) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """Shadow rays: S per pixel and light, stratified over the light's visible solid angle.
 
     Returns
     -------
-    pixel, triangle, light : (P,) int64   unique seed triples (window-local pixel).
+    pixel, blocker, light : (P,) int64   unique seed triples (window-local pixel).
     rays : int                            shadow rays cast.
     """
     n_lights = len(frames)
@@ -174,30 +180,32 @@ def detect_seeds(surface: SurfacePoints, frames: LightFrames, tracer, settings: 
         good = (pdf > 0) & (toward > 0) & (height > 0)
         tfar = np.where(good, height / np.where(good, toward, 1.0), 0.0) * (1.0 - 1e-6)
         hits = tracer.intersect(origin[good], direction[good], tfar[good])
-        blocked = (hits.index_triangle >= 0) & (hits.index_triangle != surface.index_triangle[pix_s[good]])
-        return pix_s[good][blocked], hits.index_triangle[blocked], lig_s[good][blocked], int(good.sum())
+        own = blockers.of_triangle[surface.index_triangle[pix_s[good]]]
+        found = np.where(hits.index_triangle >= 0, blockers.of_triangle[np.maximum(hits.index_triangle, 0)], -1)
+        blocked = (found >= 0) & (found != own)
+        return pix_s[good][blocked], found[blocked], lig_s[good][blocked], int(good.sum())
 
     progress.begin_stage("Blocker detection", len(hit_pixels))
     units = [len(hit_pixels[start:start + batch]) for start in starts]
     found = [f for f in map_batches(detect, starts, thread_count(settings.threads), progress, units) if f is not None]
     progress.end_stage()
     found_pixel = [f[0] for f in found]
-    found_triangle = [f[1] for f in found]
+    found_blocker = [f[1] for f in found]
     found_light = [f[2] for f in found]
     rays = sum(f[3] for f in found)
     if not found_pixel:
         empty = np.zeros(0, np.int64)
         return empty, empty, empty, rays
     pixel = np.concatenate(found_pixel)
-    triangle = np.concatenate(found_triangle).astype(np.int64)
+    blocker = np.concatenate(found_blocker).astype(np.int64)
     light = np.concatenate(found_light)
-    n_tri = int(triangle.max()) + 1 if len(triangle) else 1
-    key = np.unique((pixel * n_lights + light) * n_tri + triangle)
-    return key // n_tri // n_lights, key % n_tri, key // n_tri % n_lights, rays
+    n_blockers = int(blocker.max()) + 1 if len(blocker) else 1
+    key = np.unique((pixel * n_lights + light) * n_blockers + blocker)
+    return key // n_blockers // n_lights, key % n_blockers, key // n_blockers % n_lights, rays
 
 
-def flood_fill(surface: SurfacePoints, frames: LightFrames, triangles: np.ndarray, shape: tuple[int, int],
-               seed_pixel: np.ndarray, seed_triangle: np.ndarray, seed_light: np.ndarray, settings: Settings,
+def flood_fill(surface: SurfacePoints, frames: LightFrames, blockers: BlockerPolygons, shape: tuple[int, int],
+               seed_pixel: np.ndarray, seed_blocker: np.ndarray, seed_light: np.ndarray, settings: Settings,
                progress: Progress) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
     """Grow every seeded pair through the image while its blocker overlaps its light.
 
@@ -207,7 +215,7 @@ def flood_fill(surface: SurfacePoints, frames: LightFrames, triangles: np.ndarra
 
     Returns
     -------
-    pixel, triangle, light : (E,) int64   stored entries.
+    pixel, blocker, light : (E,) int64   stored entries.
     umbra : (N, L) bool
     stats : dict                          tests, iterations, pairs.
     """
@@ -219,8 +227,8 @@ def flood_fill(surface: SurfacePoints, frames: LightFrames, triangles: np.ndarra
     if len(seed_pixel) == 0:
         empty = np.zeros(0, np.int64)
         return empty, empty, empty, umbra, stats
-    pair_key, seed_pair = np.unique(seed_triangle * n_lights + seed_light, return_inverse=True)
-    pair_triangle, pair_light = pair_key // n_lights, pair_key % n_lights
+    pair_key, seed_pair = np.unique(seed_blocker * n_lights + seed_light, return_inverse=True)
+    pair_blocker, pair_light = pair_key // n_lights, pair_key % n_lights
     stats["pairs"] = len(pair_key)
     offsets = _NEIGHBOURS_8 if settings.connectivity == 8 else _NEIGHBOURS_4
 
@@ -243,7 +251,7 @@ def flood_fill(surface: SurfacePoints, frames: LightFrames, triangles: np.ndarra
             stats["fill_iterations"] += 1
             stats["fill_tests"] += len(frontier_pixel)
             pair = frontier_pair + chunk_start
-            ok, hidden = test_pairs(surface, frames, triangles, frontier_pixel, pair_triangle[pair], pair_light[pair],
+            ok, hidden = test_pairs(surface, frames, blockers, frontier_pixel, pair_blocker[pair], pair_light[pair],
                                     thread_count(settings.threads))
             stored.append(np.stack([frontier_pixel[ok], pair[ok]]))
             umbra[frontier_pixel[hidden], pair_light[pair[hidden]]] = True
@@ -254,7 +262,7 @@ def flood_fill(surface: SurfacePoints, frames: LightFrames, triangles: np.ndarra
     progress.end_stage()
     entries = np.concatenate(stored, axis=1)
     pair = entries[1]
-    return entries[0], pair_triangle[pair], pair_light[pair], umbra, stats
+    return entries[0], pair_blocker[pair], pair_light[pair], umbra, stats
 
 
 def _mark(visited: np.ndarray, pair: np.ndarray, pixel: np.ndarray) -> None:
@@ -281,25 +289,25 @@ def _next_ring(pixel, pair, offsets, height, width, hit, visited):
     return neighbour, pair_n
 
 
-def build_blocker_map(surface: SurfacePoints, frames: LightFrames, triangles: np.ndarray, tracer,
+def build_blocker_map(surface: SurfacePoints, frames: LightFrames, blockers: BlockerPolygons, tracer,
                       shape: tuple[int, int], pixel_global: np.ndarray, settings: Settings,
                       progress: Progress) -> BlockerMap:
     """Pass 1 for the lazy integrators: detection, flood fill, umbra (paper 4.1 and 5)."""
-    seed_pixel, seed_triangle, seed_light, rays = detect_seeds(surface, frames, tracer, settings, pixel_global,
-                                                               progress)
-    pixel, triangle, light, umbra, stats = flood_fill(surface, frames, triangles, shape, seed_pixel, seed_triangle,
-                                                      seed_light, settings, progress)
+    seed_pixel, seed_blocker, seed_light, rays = detect_seeds(surface, frames, blockers, tracer, settings,
+                                                              pixel_global, progress)
+    pixel, blocker, light, umbra, stats = flood_fill(surface, frames, blockers, shape, seed_pixel, seed_blocker,
+                                                     seed_light, settings, progress)
     if not settings.umbra_detection:
         umbra[:] = False
     stats.update(shadow_rays=rays, seeds=len(seed_pixel))
-    return BlockerMap.from_entries(pixel, light, triangle, umbra, stats)
+    return BlockerMap.from_entries(pixel, light, blocker, umbra, stats)
 
 
-def reference_blocker_map(surface: SurfacePoints, frames: LightFrames, triangles: np.ndarray,
+def reference_blocker_map(surface: SurfacePoints, frames: LightFrames, blockers: BlockerPolygons,
                           shape: tuple[int, int], settings: Settings, progress: Progress) -> BlockerMap:
-    """Every triangle is a candidate blocker: the exact (and slow) oracle.
+    """Every blocker is a candidate: the exact (and slow) oracle.
 
-    Pixels are taken in tiles; a triangle is tested against a tile only when its bounding box meets the
+    Pixels are taken in tiles; a blocker is tested against a tile only when its bounding box meets the
     box around the tile's visible points and the light (a segment from any of those points to the light
     lies in that box), which keeps the test exact while skipping most pairs.
     """
@@ -307,7 +315,7 @@ def reference_blocker_map(surface: SurfacePoints, frames: LightFrames, triangles
     n_pixels = height * width
     n_lights = len(frames)
     umbra = np.zeros((n_pixels, n_lights), bool)
-    tri_low, tri_high = triangles.min(axis=1), triangles.max(axis=1)
+    tri_low, tri_high = blockers.vertices.min(axis=1), blockers.vertices.max(axis=1)
     tile = 16
     tiles = [(r, c) for r in range(0, height, tile) for c in range(0, width, tile)]
     stored = []
@@ -317,7 +325,7 @@ def reference_blocker_map(surface: SurfacePoints, frames: LightFrames, triangles
         rows, cols = np.mgrid[r:min(r + tile, height), c:min(c + tile, width)]
         pixels = (rows * width + cols).reshape(-1)
         pixels = pixels[surface.hit[pixels]]
-        if len(pixels) == 0 or len(triangles) == 0:
+        if len(pixels) == 0 or len(blockers) == 0:
             progress.advance()
             continue
         points = surface.position[pixels]
@@ -331,7 +339,7 @@ def reference_blocker_map(surface: SurfacePoints, frames: LightFrames, triangles
             pix = np.repeat(pixels, len(candidates))
             tri = np.tile(candidates, len(pixels))
             lig = np.full(len(pix), light)
-            ok, hidden = test_pairs(surface, frames, triangles, pix, tri, lig, thread_count(settings.threads))
+            ok, hidden = test_pairs(surface, frames, blockers, pix, tri, lig, thread_count(settings.threads))
             tests += len(pix)
             stored.append(np.stack([pix[ok], tri[ok], lig[ok]]))
             umbra[pix[hidden], light] = True

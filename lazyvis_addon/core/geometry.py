@@ -149,35 +149,34 @@ def trim(points: np.ndarray, count: np.ndarray) -> np.ndarray:
 # Blocker cones
 # ------------------------------------------------------------------------------------------------------
 
-def blocker_in_front_of_light(receiver: np.ndarray, triangle: np.ndarray, light_origin: np.ndarray,
+def blocker_in_front_of_light(receiver: np.ndarray, polygon: np.ndarray, count: np.ndarray, light_origin: np.ndarray,
                               light_normal: np.ndarray, light_side: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The part of each blocker triangle strictly in front of its light, relative to the receiver.
+    """The part of each blocker polygon strictly in front of its light, relative to the receiver.
 
     Parameters
     ----------
     receiver : (N, 3) float64        visible points x.
-    triangle : (N, 3, 3) float64     blocker vertices (world space).
+    polygon : (N, K, 3) float64      blocker vertices (world space, padded), count : (N,) int64.
     light_origin, light_normal : (N, 3)
     light_side : (N,) float64        +1 when x is on the light's normal side, -1 on its back (two-sided).
 
     Returns
     -------
-    polygon : (N, 4, 3) float64      the blocker clipped to the light's x side, minus x (padded).
+    clipped : (N, K + 1, 3) float64  the blocker clipped to the light's x side, minus x (padded).
     count : (N,) int64               0 when no part of the blocker lies in front of the light.
     """
-    height = light_side[:, None] * np.einsum("nvk,nk->nv", triangle - light_origin[:, None], light_normal)
-    scale = np.max(np.abs(triangle - receiver[:, None]), axis=(1, 2)) + np.abs(receiver).max(axis=1)
+    height = light_side[:, None] * np.einsum("nvk,nk->nv", polygon - light_origin[:, None], light_normal)
+    relative = polygon - receiver[:, None]
+    scale = np.abs(relative).max(axis=(1, 2)) + np.abs(receiver).max(axis=1)
     # A vertex on the light's plane (a light set into a ceiling) blocks nothing.
     side = height - PLANE_EPS * scale[:, None]
-    relative = triangle - receiver[:, None]
-    count = np.full(len(triangle), 3, dtype=np.int64)
-    polygon = np.concatenate([relative, relative[:, 2:3]], axis=1)
-    straddle = (side < 0).any(axis=1)
-    if straddle.any():
-        clipped, clipped_count = clip_convex(relative[straddle], count[straddle], side[straddle])
-        polygon[straddle] = clipped
-        count[straddle] = clipped_count
-    return polygon, count
+    clipped = np.concatenate([relative, relative[:, -1:]], axis=1)
+    count = np.asarray(count, dtype=np.int64).copy()
+    real = np.arange(polygon.shape[1])[None, :] < count[:, None]
+    straddle = np.flatnonzero((real & (side < 0)).any(axis=1))
+    if len(straddle):
+        clipped[straddle], count[straddle] = clip_convex(relative[straddle], count[straddle], side[straddle])
+    return clipped, count
 
 
 def cone_planes(polygon: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -16,6 +16,7 @@ import numpy as np
 
 from . import rng
 from .blocker_map import BlockerMap
+from .blockers import BlockerPolygons
 from .geometry import (LightFrames, ReceiverLight, blocker_in_front_of_light, clip_convex, cone_planes,
                        plane_lines, polygon_area_2d, projected_solid_angle, receiver_light, trim)
 from .sampling import sample_polygon_solid_angle, sample_spherical_triangle, spherical_triangle_solid_angle
@@ -67,7 +68,7 @@ def couples_for(surface: SurfacePoints, frames: LightFrames, exclude: np.ndarray
     return setup, pixel[keep]
 
 
-def visible_pieces(surface: SurfacePoints, frames: LightFrames, triangles: np.ndarray, blockers: BlockerMap
+def visible_pieces(surface: SurfacePoints, frames: LightFrames, polygons: BlockerPolygons, blockers: BlockerMap
                    ) -> VisiblePieces:
     """Cut every lit couple's light by its blockers.
 
@@ -82,13 +83,13 @@ def visible_pieces(surface: SurfacePoints, frames: LightFrames, triangles: np.nd
     lookup[couple_pixel * n_lights + couples.light] = np.arange(len(couple_pixel))
     entry_couple = lookup[blockers.pixel * n_lights + blockers.light]
     keep = entry_couple >= 0
-    entry_couple, entry_triangle = entry_couple[keep], blockers.triangle[keep]
+    entry_couple, entry_blocker = entry_couple[keep], blockers.blocker[keep]
 
     pieces_uv, pieces_count, pieces_couple = couples.uv.copy(), couples.count.copy(), np.arange(len(couple_pixel))
     if len(entry_couple) == 0:
         return VisiblePieces(couples, couple_pixel, pieces_uv, pieces_count, pieces_couple)
 
-    lines, line_valid = _blocker_lines(surface, frames, triangles, couples, couple_pixel, entry_couple, entry_triangle)
+    lines, line_valid = _blocker_lines(surface, frames, polygons, couples, couple_pixel, entry_couple, entry_blocker)
     order = np.argsort(entry_couple, kind="stable")
     entry_couple, lines, line_valid = entry_couple[order], lines[order], line_valid[order]
     first = np.searchsorted(entry_couple, np.arange(len(couple_pixel)))
@@ -116,13 +117,13 @@ def visible_pieces(surface: SurfacePoints, frames: LightFrames, triangles: np.nd
     return VisiblePieces(couples, couple_pixel, pieces_uv, pieces_count, pieces_couple, rounds)
 
 
-def _blocker_lines(surface, frames, triangles, couples, couple_pixel, entry_couple, entry_triangle):
-    """Each blocker's cone faces as lines in its light's plane: (E, 4, 3) lines and (E, 4) validity."""
+def _blocker_lines(surface, frames, polygons, couples, couple_pixel, entry_couple, entry_blocker):
+    """Each blocker's cone faces as lines in its light's plane: (E, 5, 3) lines and (E, 5) validity."""
     pixel = couple_pixel[entry_couple]
     light = couples.light[entry_couple]
     x = surface.position[pixel]
-    polygon, count = blocker_in_front_of_light(x, triangles[entry_triangle], frames.origin[light],
-                                               frames.normal[light], couples.side[entry_couple])
+    polygon, count = blocker_in_front_of_light(x, polygons.vertices[entry_blocker], polygons.count[entry_blocker],
+                                               frames.origin[light], frames.normal[light], couples.side[entry_couple])
     planes, valid = cone_planes(polygon, count)
     lines = plane_lines(planes, couples.receiver_in_light[entry_couple], light, frames)
     return lines, valid

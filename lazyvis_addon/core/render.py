@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .blockers import BlockerPolygons
 from .blocker_map import BlockerMap, build_blocker_map, reference_blocker_map
 from .camera import camera_rays, planar_depth, window_pixels
 from .geometry import light_frames
@@ -78,6 +79,8 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
 
     frames = light_frames(scene.lights)
     pixel_global = _global_pixels(camera)
+    polygons = BlockerPolygons.from_triangles(scene.triangles, merge=settings.merge_quads)
+    stats["blocker_polygons"] = len(polygons)
     blockers = None
     if settings.integrator in ("analytic", "reduced_mc"):
         # Pass 1 runs over the window grown by a margin; pass 2 shades only the window.
@@ -85,7 +88,7 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
         outer_surface = _primary(scene, tracer, extent, settings, progress, outer)
         outer_shape = (outer[3] - outer[1], outer[2] - outer[0])
         outer_global = _global_pixels(camera, outer)
-        blockers = build_blocker_map(outer_surface, frames, scene.triangles, tracer, outer_shape, outer_global,
+        blockers = build_blocker_map(outer_surface, frames, polygons, tracer, outer_shape, outer_global,
                                      settings, progress)
         inner = _inner_indices(camera.window, outer)
         surface = outer_surface.take(inner)
@@ -93,12 +96,12 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
     else:
         surface = _primary(scene, tracer, extent, settings, progress)
         if settings.integrator == "reference":
-            blockers = reference_blocker_map(surface, frames, scene.triangles, (height, width), settings, progress)
+            blockers = reference_blocker_map(surface, frames, polygons, (height, width), settings, progress)
     if blockers is not None:
         stats.update(blockers.stats)
         stats["pairs_stored"] = len(blockers.pixel)
 
-    radiance, pass2_stats = _illuminate(surface, frames, scene.triangles, tracer, blockers, settings, pixel_global,
+    radiance, pass2_stats = _illuminate(surface, frames, polygons, tracer, blockers, settings, pixel_global,
                                         progress)
     stats.update(pass2_stats)
 
@@ -151,7 +154,7 @@ def _primary(scene: Scene, tracer, extent: float, settings: Settings, progress: 
                             "offset")))
 
 
-def _illuminate(surface: SurfacePoints, frames, triangles, tracer, blockers: BlockerMap | None, settings: Settings,
+def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: BlockerMap | None, settings: Settings,
                 pixel_global: np.ndarray, progress: Progress) -> tuple[np.ndarray, dict]:
     """Pass 2 over pixel batches: outgoing radiance (N, 3)."""
     n_pixels = len(surface)
@@ -176,9 +179,9 @@ def _illuminate(surface: SurfacePoints, frames, triangles, tracer, blockers: Blo
             projected, couples, couple_pixel, _ = standard_mc(part, frames, tracer, settings, globals_)
         else:
             lo, hi = entry_bounds[index], entry_bounds[index + 1]
-            local = BlockerMap(blockers.pixel[lo:hi] - start, blockers.light[lo:hi], blockers.triangle[lo:hi],
+            local = BlockerMap(blockers.pixel[lo:hi] - start, blockers.light[lo:hi], blockers.blocker[lo:hi],
                                blockers.umbra[start:stop])
-            pieces = visible_pieces(part, frames, triangles, local)
+            pieces = visible_pieces(part, frames, polygons, local)
             couples, couple_pixel = pieces.couples, pieces.couple_pixel
             if settings.integrator == "reduced_mc":
                 projected = reduced_domain_mc(pieces, part, frames, settings, globals_)

@@ -40,6 +40,9 @@ class Settings:
         Working memory the passes may use for their batches; a budget too small to render fails clearly.
     pixel_batch : int
         Pixels per batch in pass 2 and for camera rays (progress and cancel granularity).
+    merge_quads : bool
+        Merge coplanar triangle pairs that form convex quads into one blocker polygon (fewer pairs and
+        pieces; the image is the same up to rounding).
     threads : int
         Worker threads for the batched stages; 0 means one per core.
     window_margin : int
@@ -61,6 +64,7 @@ class Settings:
     pixel_batch: int = 16384
     window_margin: int = 32
     threads: int = 0
+    merge_quads: bool = True
 
     def __post_init__(self) -> None:
         if self.integrator not in INTEGRATORS:
