@@ -1,0 +1,156 @@
+"""The render engine: export the depsgraph, render with the core, write the render result.
+
+The ``RenderEngine`` subclass only delegates. Every failure ends as ``report({'ERROR'}, message)`` with
+no image written, never as a traceback in the user's face (internal errors also print one to the
+console for bug reports).
+"""
+
+from __future__ import annotations
+
+import time
+import traceback
+
+import bpy
+import numpy as np
+
+from ..core.progress import Progress, RenderCancelled
+from .export import export_depsgraph
+from .properties import settings_from_scene
+
+ENGINE_ID = "LAZYVIS"
+
+# Every pass the engine writes: (name, channels, channel ids, type, enabled for a view layer, data from a
+# RenderOutput as (H, W, channels) with row 0 at the top). Used both to register and to fill passes.
+PASSES = (
+    ("Combined", 4, "RGBA", "COLOR", lambda layer: True, lambda out: out.combined),
+    ("Depth", 1, "Z", "VALUE", lambda layer: layer.use_pass_z, lambda out: out.depth[..., None]),
+    ("Normal", 3, "XYZ", "VECTOR", lambda layer: layer.use_pass_normal, lambda out: out.normal),
+    ("Blocker Count", 1, "X", "VALUE", lambda layer: layer.lazyvis.use_pass_blocker_count,
+     lambda out: out.blocker_count[..., None]),
+)
+
+
+def render_passes(view_layer):
+    """The passes written for ``view_layer``: (name, channels, chan_id, type, data function)."""
+    for name, channels, chan_id, kind, enabled, data in PASSES:
+        if enabled(view_layer):
+            yield name, channels, chan_id, kind, data
+
+
+class EngineProgress(Progress):
+    """Core progress shown in Blender's render window; Esc cancels through ``test_break``."""
+
+    def __init__(self, engine: bpy.types.RenderEngine) -> None:
+        super().__init__()
+        self.engine = engine
+        self._shown = 0.0
+
+    def on_stage(self, name: str, total: int) -> None:
+        self.engine.update_stats("", f"LazyVis | {name}")
+        self.engine.update_progress(0.0)
+
+    def on_advance(self, name: str, done: int, total: int) -> None:
+        now = time.monotonic()
+        if total and (now - self._shown > 0.1 or done >= total):  # throttled: the UI needs no more
+            self._shown = now
+            self.engine.update_progress(min(done / total, 1.0))
+
+    def is_cancelled(self) -> bool:
+        return bool(self.engine.test_break())
+
+    def on_warning(self, message: str) -> None:
+        self.engine.report({'WARNING'}, f"LazyVis: {message}")
+
+
+def core_render(scene, settings, progress):
+    """The door into the core, imported on first use so that a broken install is a clear render error."""
+    from ..core import render
+    return render(scene, settings, progress)
+
+
+def render_frame(engine: bpy.types.RenderEngine, depsgraph) -> None:
+    """Render one view layer of one frame into the engine's render result."""
+    scene = depsgraph.scene
+    view_layer = depsgraph.view_layer
+    progress = EngineProgress(engine)
+    try:
+        progress.begin_stage("Exporting scene")
+        settings = settings_from_scene(scene)
+        exported = export_depsgraph(depsgraph, progress, camera_object=engine.camera_override or scene.camera,
+                                    resolution=(engine.resolution_x, engine.resolution_y),
+                                    disk_vertices=scene.lazyvis.disk_vertices)
+        progress.end_stage()
+        output = core_render(exported.scene, settings, progress)
+        write_result(engine, view_layer, exported.scene.camera.window, output)
+    except RenderCancelled:
+        engine.update_stats("", "LazyVis | Cancelled")
+        return
+    except ValueError as error:
+        engine.report({'ERROR'}, f"LazyVis: {error}")
+        return
+    except MemoryError as error:
+        engine.report({'ERROR'}, f"LazyVis: {str(error) or 'out of memory'} (Performance > Memory Budget)")
+        return
+    except ImportError as error:
+        engine.report({'ERROR'}, f"LazyVis: the renderer could not be loaded ({error}); reinstall the add-on")
+        return
+    except Exception as error:  # a bug: keep Blender running, leave the details in the console
+        traceback.print_exc()
+        engine.report({'ERROR'}, f"LazyVis internal error ({type(error).__name__}: {error}); "
+                                 "the system console has the details")
+        return
+    seconds = output.stats.get("seconds")
+    engine.update_stats("", f"LazyVis | Done in {seconds:.2f} s" if seconds is not None else "LazyVis | Done")
+
+
+def write_result(engine: bpy.types.RenderEngine, view_layer, window, output) -> None:
+    """Write the core's passes (rows top-down) into Blender's result (rows bottom-up) for the window."""
+    x0, y0, x1, y1 = window
+    width, height = x1 - x0, y1 - y0
+    # Result coordinates start at the border's corner (measured): the whole result is the window.
+    result = engine.begin_result(0, 0, width, height, layer=view_layer.name)
+    try:
+        if (result.resolution_x, result.resolution_y) != (width, height):
+            raise RuntimeError(f"Blender's render result is {result.resolution_x} x {result.resolution_y} "
+                               f"pixels but the rendered window is {width} x {height}")
+        layer = result.layers[0]
+        for name, channels, _chan_id, _kind, data in render_passes(view_layer):
+            render_pass = layer.passes.find_by_name(name, "")
+            if render_pass is None:
+                continue
+            pixels = np.asarray(data(output), dtype=np.float32)[::-1]  # Blender's rows start at the bottom
+            render_pass.rect.foreach_set(np.ascontiguousarray(pixels).reshape(-1))
+    except BaseException:
+        engine.end_result(result, cancel=True)
+        raise
+    engine.end_result(result)
+
+
+class LazyVisRenderEngine(bpy.types.RenderEngine):
+    """Direct illumination with lazy visibility evaluation (Hart, Dutre, Greenberg 1999)."""
+
+    bl_idname = ENGINE_ID
+    bl_label = "Lazy Visibility"
+    bl_use_preview = False
+    bl_use_shading_nodes_custom = False
+    bl_use_eevee_viewport = True  # Material Preview in the viewport uses EEVEE
+
+    def render(self, depsgraph):
+        render_frame(self, depsgraph)
+
+    def update_render_passes(self, scene=None, renderlayer=None):
+        for name, channels, chan_id, kind, _data in render_passes(renderlayer):
+            self.register_pass(scene, renderlayer, name, channels, chan_id, kind)
+
+
+classes = (LazyVisRenderEngine,)
+
+
+def register() -> None:
+    for cls in classes:
+        bpy.utils.register_class(cls)
+
+
+def unregister() -> None:
+    for cls in reversed(classes):
+        bpy.utils.unregister_class(cls)

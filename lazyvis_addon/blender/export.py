@@ -1,0 +1,570 @@
+"""Blender depsgraph -> core ``Scene``: geometry, materials, lights, camera and world.
+
+Everything is read with ``foreach_get`` into numpy and transformed in numpy; Python loops run over
+objects, instances, material slots and lights, never over triangles or vertices.
+
+Measured on Blender 5.0.1 (see tests/blender/test_export.py):
+- ``depsgraph.object_instances`` hands the evaluated geometry of curves, surfaces, metaballs and text
+  over as a separate *instance* whose object is of type MESH (``is_instance`` True, ``parent`` = the
+  curve object). The curve object itself is listed too, with curve data. Reading only MESH objects
+  therefore counts every triangle once; calling ``to_mesh()`` on the curve object as well would count
+  its triangles twice.
+- A render depsgraph leaves out objects with ``hide_render``; a viewport depsgraph (tests) does not, so
+  ``hide_render`` is also checked here.
+- ``Camera.view_frame`` matches ``screen_window`` below for every sensor fit, shift and pixel aspect.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..core.progress import Progress
+from ..core.scene import Camera, Lights, Materials, Scene
+
+DISK_VERTICES_DEFAULT = 32
+# Cycles shades objects without a material with a grey diffuse surface.
+DEFAULT_ALBEDO = (0.8, 0.8, 0.8)
+DEFAULT_MATERIAL_NAME = "(no material)"
+
+UNSUPPORTED_GEOMETRY = {"CURVES": "hair curves", "POINTCLOUD": "point cloud", "VOLUME": "volume",
+                        "GREASEPENCIL": "Grease Pencil"}
+
+
+# -- results ---------------------------------------------------------------------------------------------
+
+
+@dataclass
+class MaterialRecord:
+    """One row of the material table, with what was read for later (glossy) support.
+
+    ``kind`` is "diffuse", "principled", "emission", "no_nodes", "default", "black" or "viewport"
+    (unreadable node setup, shown with the viewport colour). ``emission`` is the radiance of an
+    emitting material (zero otherwise); metallic/roughness/specular_ior_level/ior are NaN when not
+    read (not a Principled BSDF, or the input is linked).
+    """
+
+    name: str
+    kind: str
+    albedo: tuple[float, float, float]
+    emission: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    metallic: float = math.nan
+    roughness: float = math.nan
+    specular_ior_level: float = math.nan
+    ior: float = math.nan
+    non_diffuse: tuple[str, ...] = ()
+
+    @property
+    def is_emitter(self) -> bool:
+        return max(self.emission) > 0.0
+
+
+@dataclass
+class Export:
+    """The core scene and what the Blender layer knows about it.
+
+    Attributes
+    ----------
+    scene : Scene
+    materials : list[MaterialRecord]    rows of ``scene.materials`` (emitting materials included: their
+                                        triangles are lights, not surfaces)
+    light_names : list[str]             object name of each light in ``scene.lights`` (L,)
+    counts : dict                       objects, instances, mesh triangles, emitter triangles, area lights
+    """
+
+    scene: Scene
+    materials: list[MaterialRecord]
+    light_names: list[str]
+    counts: dict = field(default_factory=dict)
+
+
+# -- pure maths (no bpy) ---------------------------------------------------------------------------------
+
+
+def screen_window(projection: str, lens: float, sensor_width: float, sensor_height: float, sensor_fit: str,
+                  ortho_scale: float, shift_x: float, shift_y: float, width: int, height: int,
+                  pixel_aspect_x: float = 1.0, pixel_aspect_y: float = 1.0) -> np.ndarray:
+    """(left, right, bottom, top) of the full frame as Blender's viewplane computes it.
+
+    Perspective: on the plane z = -1 in camera space; orthographic: in camera-space units.
+    The sensor (or ortho_scale) spans the image width for HORIZONTAL fit, the height for VERTICAL fit,
+    and the longer side in aspect-corrected pixels for AUTO; lens shift is in units of that side.
+    """
+    y_correction = pixel_aspect_y / pixel_aspect_x
+    aspect_width, aspect_height = width * pixel_aspect_x, height * pixel_aspect_y
+    fit = sensor_fit
+    if fit == "AUTO":
+        fit = "HORIZONTAL" if aspect_width >= aspect_height else "VERTICAL"
+    if projection == "orthographic":
+        span = ortho_scale
+    else:
+        sensor = sensor_height if sensor_fit == "VERTICAL" else sensor_width
+        span = sensor / lens
+    view_pixels = width if fit == "HORIZONTAL" else y_correction * height
+    pixel = span / view_pixels
+    half_x, half_y = 0.5 * width * pixel, 0.5 * y_correction * height * pixel
+    dx, dy = shift_x * view_pixels * pixel, shift_y * view_pixels * pixel
+    return np.array([-half_x + dx, half_x + dx, -half_y + dy, half_y + dy])
+
+
+def border_window(width: int, height: int, border: tuple[float, float, float, float] | None
+                  ) -> tuple[int, int, int, int]:
+    """Core pixel window (x0, y0, x1, y1), rows counted from the top, of Blender's render border.
+
+    ``border`` = (min_x, max_x, min_y, max_y) as fractions with y up (Blender's), or None. Blender
+    truncates ``fraction * size`` to whole pixels (measured: the render result has exactly this size).
+    """
+    if border is None:
+        return (0, 0, width, height)
+    min_x, max_x, min_y, max_y = (float(np.float32(v)) for v in border)
+    x0, x1 = int(min_x * width), int(max_x * width)
+    bottom, top = int(min_y * height), int(max_y * height)
+    if x1 <= x0 or top <= bottom:
+        raise ValueError(f"the render border selects no pixels of the {width} x {height} image; "
+                         "make it larger or turn Render Region off")
+    return (x0, height - top, x1, height - bottom)
+
+
+def ellipse_polygon(size_x: float, size_y: float, count: int) -> np.ndarray:
+    """Regular ``count``-gon for an ellipse of diameters size_x, size_y in the local XY plane, scaled
+    to the ellipse's area (pi/4 size_x size_y), ordered counter-clockwise about local -Z. (count, 3)."""
+    angles = -2.0 * np.pi * np.arange(count) / count  # clockwise seen from +Z = counter-clockwise about -Z
+    # Area of the regular n-gon inscribed in the unit circle is n/2 sin(2 pi/n); match pi.
+    scale = math.sqrt(math.pi / (0.5 * count * math.sin(2.0 * math.pi / count)))
+    return np.stack([0.5 * size_x * scale * np.cos(angles), 0.5 * size_y * scale * np.sin(angles),
+                     np.zeros(count)], axis=1)
+
+
+def rectangle_polygon(size_x: float, size_y: float) -> np.ndarray:
+    """Rectangle of sides size_x, size_y centred in the local XY plane, counter-clockwise about -Z. (4, 3)."""
+    hx, hy = 0.5 * size_x, 0.5 * size_y
+    return np.array([[hx, hy, 0.0], [hx, -hy, 0.0], [-hx, -hy, 0.0], [-hx, hy, 0.0]])
+
+
+def polygon_area_normal(vertices: np.ndarray) -> tuple[float, np.ndarray]:
+    """Area and Newell normal (unnormalised, length 2 x area) of a planar polygon (V, 3)."""
+    newell = np.cross(vertices, np.roll(vertices, -1, axis=0)).sum(axis=0)
+    return 0.5 * float(np.linalg.norm(newell)), newell
+
+
+def area_light_radiance(color, power: float, exposure: float, normalize: bool, area: float) -> np.ndarray:
+    """Radiance of a Blender area light: colour P 2^exposure / (pi A), or without the area when not
+    normalised (the project's radiometry note, measured against Cycles)."""
+    value = np.asarray(color, dtype=np.float64)[:3] * power * 2.0 ** exposure / math.pi
+    return value / area if normalize else value
+
+
+# -- the exporter ----------------------------------------------------------------------------------------
+
+
+def export_depsgraph(depsgraph, progress: Progress | None = None, *, camera_object=None,
+                     resolution: tuple[int, int] | None = None,
+                     disk_vertices: int = DISK_VERTICES_DEFAULT) -> Export:
+    """Read an evaluated depsgraph into a core ``Scene``.
+
+    Parameters
+    ----------
+    depsgraph : bpy.types.Depsgraph     evaluated (render or viewport) depsgraph
+    progress : Progress                 receives warnings (unsupported lights, materials, ...)
+    camera_object : Object or None      the camera to render through (default: the scene camera)
+    resolution : (W, H) or None         full-frame pixels; default from the render settings. The render
+                                        engine passes its own ``resolution_x/y`` (Blender's rounding).
+    disk_vertices : int                 polygon vertices for disk and ellipse area lights
+
+    Raises
+    ------
+    ValueError  no camera, unsupported camera, NaN or infinite coordinates (naming the object), ...
+    """
+    progress = progress or Progress()
+    scene = depsgraph.scene
+    render = scene.render
+    if resolution is None:
+        resolution = (render.resolution_x * render.resolution_percentage // 100,
+                      render.resolution_y * render.resolution_percentage // 100)
+    width, height = max(int(resolution[0]), 1), max(int(resolution[1]), 1)
+    if disk_vertices < 3:
+        raise ValueError(f"disk lights need at least 3 polygon vertices, not {disk_vertices}")
+
+    camera = export_camera(camera_object or scene.camera, render, width, height)
+    reader = _DepsgraphReader(progress, disk_vertices)
+    reader.read(depsgraph)
+    background = export_world(scene.world, progress)
+    return reader.finish(camera, background)
+
+
+def export_camera(camera_object, render, width: int, height: int) -> Camera:
+    """Core camera of a Blender camera object at the given full-frame resolution."""
+    if camera_object is None:
+        raise ValueError("the scene has no camera: add one and make it the scene camera")
+    data = camera_object.data
+    if camera_object.type != "CAMERA":
+        raise ValueError(f"'{camera_object.name}' is not a camera")
+    if data.type not in ("PERSP", "ORTHO"):
+        raise ValueError(f"camera '{camera_object.name}' is of type {data.type}; LazyVis renders perspective "
+                         "and orthographic cameras only")
+    matrix = np.array(camera_object.matrix_world, dtype=np.float64)
+    if not np.isfinite(matrix).all():
+        raise ValueError(f"camera '{camera_object.name}' has a NaN or infinite transform")
+    # Blender ignores the camera object's scale: keep rotation and position only.
+    lengths = np.linalg.norm(matrix[:3, :3], axis=0)
+    if (lengths <= 0).any():
+        raise ValueError(f"camera '{camera_object.name}' has a zero scale")
+    matrix[:3, :3] /= lengths
+    projection = "orthographic" if data.type == "ORTHO" else "perspective"
+    window = screen_window(projection, data.lens, data.sensor_width, data.sensor_height, data.sensor_fit,
+                           data.ortho_scale, data.shift_x, data.shift_y, width, height,
+                           render.pixel_aspect_x, render.pixel_aspect_y)
+    border = (render.border_min_x, render.border_max_x, render.border_min_y, render.border_max_y) \
+        if render.use_border else None
+    return Camera(matrix, width, height, projection, window, border_window(width, height, border))
+
+
+def export_world(world, progress: Progress) -> np.ndarray:
+    """Background radiance (3,): a constant Background node's colour x strength, else ``world.color``."""
+    if world is None:
+        return np.zeros(3)
+    tree = world.node_tree
+    if tree is None:
+        background = np.array(world.color[:3], dtype=np.float64)
+    else:
+        output = tree.get_output_node("CYCLES")
+        node = _linked_node(output.inputs["Surface"]) if output is not None else None
+        if output is None or not output.inputs["Surface"].is_linked:
+            background = np.zeros(3)  # Cycles renders a world without a surface black
+        elif node is not None and node.bl_idname == "ShaderNodeBackground" \
+                and not node.inputs["Color"].is_linked and not node.inputs["Strength"].is_linked:
+            background = np.array(node.inputs["Color"].default_value[:3]) * node.inputs["Strength"].default_value
+        else:
+            background = np.array(world.color[:3], dtype=np.float64)
+            progress.warn(f"world '{world.name}': only a constant Background node is read; "
+                          "showing its viewport colour instead")
+    if background.max() > 0:
+        progress.warn("the world is not black: LazyVis shows it behind the scene but does not light the "
+                      "scene with it (Cycles does); use a black world to compare with Cycles")
+    return background
+
+
+def _linked_node(socket):
+    """The node feeding ``socket`` through reroutes, or None (unlinked, muted or a reroute loop)."""
+    seen = 0
+    while socket.is_linked and seen < 64:
+        link = socket.links[0]
+        if not link.is_valid or link.is_muted:
+            return None
+        node = link.from_node
+        if node.bl_idname != "NodeReroute":
+            return None if node.mute else node
+        socket, seen = node.inputs[0], seen + 1
+    return None
+
+
+def _unlinked(node, name: str):
+    socket = node.inputs.get(name)
+    if socket is None or socket.is_linked:
+        return None
+    return socket.default_value
+
+
+def read_material(material) -> MaterialRecord | None:
+    """A material's diffuse albedo / emission, or None when its node setup cannot be read."""
+    if material is None:
+        return MaterialRecord(DEFAULT_MATERIAL_NAME, "default", DEFAULT_ALBEDO)
+    name = material.name
+    tree = material.node_tree
+    if tree is None:
+        return MaterialRecord(name, "no_nodes", tuple(material.diffuse_color[:3]))
+    output = tree.get_output_node("CYCLES")
+    if output is None:
+        return None
+    surface = output.inputs["Surface"]
+    if not surface.is_linked:
+        return MaterialRecord(name, "black", (0.0, 0.0, 0.0))  # no closure: Cycles shades it black
+    node = _linked_node(surface)
+    if node is None:
+        return None
+    kind = node.bl_idname
+    if kind == "ShaderNodeBsdfDiffuse":
+        color = _unlinked(node, "Color")
+        return None if color is None else MaterialRecord(name, "diffuse", tuple(color[:3]))
+    if kind == "ShaderNodeEmission":
+        color, strength = _unlinked(node, "Color"), _unlinked(node, "Strength")
+        if color is None or strength is None:
+            return None
+        return MaterialRecord(name, "emission", (0.0, 0.0, 0.0), tuple(np.array(color[:3]) * strength))
+    if kind == "ShaderNodeBsdfPrincipled":
+        color = _unlinked(node, "Base Color")
+        if color is None:
+            return None
+        values = {key: _unlinked(node, key) for key in
+                  ("Metallic", "Roughness", "Specular IOR Level", "IOR", "Transmission Weight", "Coat Weight",
+                   "Sheen Weight", "Subsurface Weight", "Emission Strength")}
+        values = {key: (math.nan if value is None else float(value)) for key, value in values.items()}
+        specular = values["Specular IOR Level"], values["IOR"]
+        non_diffuse = []
+        if not (specular[0] == 0.0 or specular[1] == 1.0):
+            non_diffuse.append("specular")
+        for key, label in (("Metallic", "metallic"), ("Transmission Weight", "transmission"),
+                           ("Coat Weight", "coat"), ("Sheen Weight", "sheen"), ("Subsurface Weight", "subsurface")):
+            if not values[key] == 0.0:
+                non_diffuse.append(label)
+        emission = (0.0, 0.0, 0.0)
+        emission_color = _unlinked(node, "Emission Color")
+        if values["Emission Strength"] > 0 and emission_color is not None:
+            emission = tuple(np.array(emission_color[:3]) * values["Emission Strength"])
+        return MaterialRecord(name, "principled", tuple(color[:3]), emission, values["Metallic"],
+                              values["Roughness"], specular[0], specular[1], tuple(non_diffuse))
+    return None
+
+
+@dataclass
+class _LocalMesh:
+    """Triangles of one evaluated mesh in object space."""
+
+    triangles: np.ndarray           # (T, 3, 3) float64
+    slot: np.ndarray                # (T,) int64 material slot
+    normals: np.ndarray | None      # (T, 3, 3) float64 corner normals, None when no face is smooth
+    smooth: np.ndarray              # (T,) bool
+
+
+class _DepsgraphReader:
+    """Accumulates triangles, lights and materials over ``depsgraph.object_instances``."""
+
+    def __init__(self, progress: Progress, disk_vertices: int) -> None:
+        self.progress = progress
+        self.disk_vertices = disk_vertices
+        self.materials: list[MaterialRecord] = []
+        self.material_ids: dict[str, int] = {}
+        self.unreadable: list[str] = []
+        self.meshes: dict[int, _LocalMesh] = {}
+        self.parts: list[tuple[np.ndarray, np.ndarray, np.ndarray | None]] = []  # triangles, material, normals
+        self.emitter_parts: list[tuple[np.ndarray, np.ndarray]] = []  # triangles, material
+        self.light_polygons: list[np.ndarray] = []
+        self.light_radiance: list[np.ndarray] = []
+        self.light_names: list[str] = []
+        self.skipped: dict[str, set[str]] = {}
+        self.counts = {"objects": 0, "instances": 0, "mesh_triangles": 0, "emitter_triangles": 0,
+                       "area_lights": 0}
+
+    def skip(self, message: str, name: str) -> None:
+        """Collect names under one warning message (one warning per message, however many objects)."""
+        self.skipped.setdefault(message, set()).add(name)
+
+    # -- traversal -----------------------------------------------------------------------------------
+    def read(self, depsgraph) -> None:
+        for instance in depsgraph.object_instances:  # one per object or instance, not per triangle
+            obj = instance.object
+            if not instance.show_self or _hidden_in_render(instance):
+                continue
+            kind = obj.type
+            if kind == "MESH":
+                self.add_mesh(obj, np.array(instance.matrix_world, dtype=np.float64))
+            elif kind == "LIGHT":
+                self.add_light(obj, np.array(instance.matrix_world, dtype=np.float64))
+            elif kind in UNSUPPORTED_GEOMETRY:
+                self.skip("objects of these types are not rendered", f"{obj.name} ({UNSUPPORTED_GEOMETRY[kind]})")
+            else:
+                continue
+            self.counts["instances" if instance.is_instance else "objects"] += 1
+
+    def material_index(self, material) -> int:
+        key = DEFAULT_MATERIAL_NAME if material is None else material.name_full
+        index = self.material_ids.get(key)
+        if index is None:
+            record = read_material(material)
+            if record is None:
+                self.unreadable.append(material.name)
+                record = MaterialRecord(material.name, "viewport", tuple(material.diffuse_color[:3]))
+            index = self.material_ids[key] = len(self.materials)
+            self.materials.append(record)
+        return index
+
+    def local_mesh(self, mesh) -> _LocalMesh:
+        key = mesh.as_pointer()
+        cached = self.meshes.get(key)
+        if cached is not None:
+            return cached
+        mesh.calc_loop_triangles()
+        triangles = mesh.loop_triangles
+        count = len(triangles)
+        positions = np.empty(len(mesh.vertices) * 3, np.float32)
+        mesh.vertices.foreach_get("co", positions)
+        corners = np.empty(count * 3, np.int32)
+        triangles.foreach_get("vertices", corners)
+        slot = np.empty(count, np.int32)
+        triangles.foreach_get("material_index", slot)
+        smooth = np.empty(count, bool)
+        triangles.foreach_get("use_smooth", smooth)
+        normals = None
+        if smooth.any():
+            normals = np.empty(count * 9, np.float32)
+            triangles.foreach_get("split_normals", normals)
+            normals = normals.reshape(count, 3, 3).astype(np.float64)
+        local = _LocalMesh(positions.reshape(-1, 3).astype(np.float64)[corners].reshape(count, 3, 3),
+                           slot.astype(np.int64), normals, smooth)
+        self.meshes[key] = local
+        return local
+
+    def add_mesh(self, obj, matrix: np.ndarray) -> None:
+        local = self.local_mesh(obj.data)
+        if len(local.triangles) == 0:
+            return
+        if not np.isfinite(local.triangles).all():
+            bad = int((~np.isfinite(local.triangles)).any(axis=(1, 2)).sum())
+            raise ValueError(f"object '{obj.name}' has NaN or infinite vertex coordinates "
+                             f"({bad} of its {len(local.triangles)} triangles); fix or delete those vertices")
+        if not np.isfinite(matrix).all():
+            raise ValueError(f"object '{obj.name}' has a NaN or infinite transform")
+        if not (obj.visible_camera and obj.visible_shadow):
+            self.skip("Ray Visibility (camera, shadow) is not supported; these objects render as visible",
+                      obj.name)
+        slots = [self.material_index(slot.material) for slot in obj.material_slots] or [self.material_index(None)]
+        lookup = np.array(slots, dtype=np.int64)
+        material = lookup[np.clip(local.slot, 0, len(lookup) - 1)]
+
+        rotation, translation = matrix[:3, :3], matrix[:3, 3]
+        triangles = local.triangles @ rotation.T + translation
+        determinant = np.linalg.det(rotation)
+        normals = None
+        if local.normals is not None:
+            if abs(determinant) > 1e-300:
+                normals = local.normals @ np.linalg.inv(rotation)  # (M^-T n)^T = n^T M^-1
+                normals /= np.maximum(np.linalg.norm(normals, axis=2, keepdims=True), 1e-300)
+            else:  # flattened to a plane by a zero scale: flat shading
+                normals = np.repeat(_geometric_normals(triangles)[:, None, :], 3, axis=1)
+        if determinant < 0:
+            # A mirroring transform turns the winding over; restore it so that the geometric normal and
+            # the transformed shading normals agree (Cycles does the same for negative scale).
+            triangles = triangles[:, [0, 2, 1]]
+            normals = None if normals is None else normals[:, [0, 2, 1]]
+        if normals is not None:
+            flat = ~local.smooth
+            normals[flat] = _geometric_normals(triangles[flat])[:, None, :]
+
+        emitting = np.array([self.materials[i].is_emitter for i in slots])[np.clip(local.slot, 0, len(slots) - 1)]
+        if emitting.any():
+            self.emitter_parts.append((triangles[emitting], material[emitting]))
+            self.counts["emitter_triangles"] += int(emitting.sum())
+            keep = ~emitting
+            triangles, material = triangles[keep], material[keep]
+            normals = None if normals is None else normals[keep]
+        self.parts.append((triangles, material, normals))
+        self.counts["mesh_triangles"] += len(triangles)
+
+    def add_light(self, obj, matrix: np.ndarray) -> None:
+        light = obj.data
+        name = obj.name
+        if light.type != "AREA":
+            self.skip("only area lights are supported; these lights are ignored", f"{name} ({light.type.lower()})")
+            return
+        if not np.isfinite(matrix).all():
+            raise ValueError(f"light '{name}' has a NaN or infinite transform")
+        if obj.visible_camera:
+            self.skip("area lights seen directly by the camera are not drawn (Cycles draws them when their "
+                      "Ray Visibility > Camera is on)", name)
+        if not light.use_shadow:
+            self.skip("area lights always cast shadows in LazyVis; Cast Shadow off is ignored", name)
+        if abs(light.spread - math.pi) > 1e-6:
+            self.skip("area lights with a spread other than 180 degrees are rendered with spread 180 degrees",
+                      name)
+        if light.shape in ("SQUARE", "RECTANGLE"):
+            size_y = light.size if light.shape == "SQUARE" else light.size_y
+            local = rectangle_polygon(light.size, size_y)
+        else:
+            size_y = light.size if light.shape == "DISK" else light.size_y
+            local = ellipse_polygon(light.size, size_y, self.disk_vertices)
+        polygon = local @ matrix[:3, :3].T + matrix[:3, 3]
+        area, newell = polygon_area_normal(polygon)
+        extent = np.max(np.abs(polygon - polygon[0]))
+        if not area > 1e-12 * max(extent, 1e-30) ** 2:
+            self.skip("area lights of zero size are ignored", name)
+            return
+        # Emission leaves the light's local -Z side (Cycles uses -Z of the object's transform).
+        if np.dot(newell, -matrix[:3, 2]) < 0:
+            polygon = polygon[::-1]
+        color = np.array(light.color[:3], dtype=np.float64)
+        if light.use_temperature:
+            color = color * np.array(light.temperature_color[:3])
+        radiance = area_light_radiance(color, light.energy, light.exposure, light.normalize, area)
+        if not radiance.max() > 0:
+            self.skip("area lights of zero power or black colour are ignored", name)
+            return
+        self.light_polygons.append(polygon)
+        self.light_radiance.append(radiance)
+        self.light_names.append(name)
+        self.counts["area_lights"] += 1
+
+    # -- assembly ------------------------------------------------------------------------------------
+    def finish(self, camera: Camera, background: np.ndarray) -> Export:
+        progress = self.progress
+        if self.unreadable:
+            progress.warn("materials whose node setup LazyVis cannot read are shown with their viewport "
+                          "colour: " + ", ".join(sorted(set(self.unreadable))))
+        principled = sorted(m.name for m in self.materials if m.non_diffuse)
+        if principled:
+            progress.warn("Principled BSDF rendered as diffuse base colour only, its specular (or metallic, "
+                          "coat, ...) part is ignored; set Specular IOR Level to 0 to match Cycles: "
+                          + ", ".join(principled))
+        mixed = sorted(m.name for m in self.materials if m.is_emitter and m.kind == "principled")
+        if mixed:
+            progress.warn("emitting Principled BSDF materials are rendered as lights only (their reflection "
+                          "is ignored): " + ", ".join(mixed))
+        for message, names in self.skipped.items():
+            progress.warn(f"{message}: {', '.join(sorted(names))}")
+
+        if self.parts:
+            triangles = np.concatenate([p[0] for p in self.parts])
+            material_index = np.concatenate([p[1] for p in self.parts])
+        else:
+            triangles, material_index = np.zeros((0, 3, 3)), np.zeros(0, np.int64)
+        normals = None
+        if any(p[2] is not None for p in self.parts):
+            normals = np.concatenate([p[2] if p[2] is not None else
+                                      np.repeat(_geometric_normals(p[0])[:, None, :], 3, axis=1)
+                                      for p in self.parts])
+        lights, names = self.lights()
+        albedo = np.array([m.albedo for m in self.materials]).reshape(-1, 3)
+        scene = Scene(triangles, material_index, Materials.diffuse(albedo), lights, camera, background, normals)
+        return Export(scene, list(self.materials), names, dict(self.counts))
+
+    def lights(self) -> tuple[Lights, list[str]]:
+        """Area lights (one-sided polygons) followed by emitting triangles (two-sided), padded to V."""
+        names = list(self.light_names)
+        emitter_triangles = np.concatenate([p[0] for p in self.emitter_parts]) if self.emitter_parts \
+            else np.zeros((0, 3, 3))
+        emitter_material = np.concatenate([p[1] for p in self.emitter_parts]) if self.emitter_parts \
+            else np.zeros(0, np.int64)
+        count = len(self.light_polygons) + len(emitter_triangles)
+        if count == 0:
+            return Lights.empty(), names
+        vmax = max([3] + [len(p) for p in self.light_polygons])
+        vertices = np.empty((count, vmax, 3))
+        vertex_count = np.empty(count, np.int64)
+        for index, polygon in enumerate(self.light_polygons):  # area lights: a handful
+            vertices[index, :len(polygon)] = polygon
+            vertices[index, len(polygon):] = polygon[-1]
+            vertex_count[index] = len(polygon)
+        first = len(self.light_polygons)
+        vertices[first:, :3] = emitter_triangles
+        vertices[first:, 3:] = emitter_triangles[:, 2:3]
+        vertex_count[first:] = 3
+        emission = np.array([m.emission for m in self.materials]).reshape(-1, 3)
+        radiance = np.concatenate([np.reshape(self.light_radiance, (-1, 3)), emission[emitter_material]])
+        two_sided = np.arange(count) >= first
+        names.extend(self.materials[i].name for i in emitter_material)
+        return Lights(vertices, vertex_count, radiance, two_sided), names
+
+
+def _geometric_normals(triangles: np.ndarray) -> np.ndarray:
+    """Unit normals (T, 3) of triangles (T, 3, 3) by their winding (zero-area ones get a zero vector)."""
+    cross = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+    return cross / np.maximum(np.linalg.norm(cross, axis=1, keepdims=True), 1e-300)
+
+
+def _hidden_in_render(instance) -> bool:
+    """``hide_render`` of the object or of the object instancing it (render depsgraphs already skip them)."""
+    if instance.object.original.hide_render:
+        return True
+    parent = instance.parent
+    return bool(instance.is_instance and parent is not None and parent.original.hide_render)

@@ -1,0 +1,99 @@
+"""Blender properties: ``scene.lazyvis`` (the core's ``Settings``) and ``view_layer.lazyvis`` (passes).
+
+Defaults come from ``Settings`` itself, and ``settings_from_scene`` is the one place where the
+properties become a ``Settings``. (No ``from __future__ import annotations`` here: Blender reads the
+property annotations as objects.)
+"""
+
+import bpy
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty
+
+from ..core.settings import Settings
+from .export import DISK_VERTICES_DEFAULT
+
+_DEFAULTS = Settings()
+
+INTEGRATOR_ITEMS = (
+    ("analytic", "Analytic", "Blocker map, then Lambert's polygon formula over the visible parts of each "
+     "light: noise-free, exact unless a blocker was missed"),
+    ("reduced_mc", "Reduced Monte Carlo", "Blocker map, then Monte Carlo over the visible parts of each light "
+     "(paper section 3.3)"),
+    ("standard_mc", "Standard Monte Carlo", "Shadow rays over the whole light, the paper's baseline"),
+    ("reference", "Reference", "Every triangle is a candidate blocker: exact and slow, for comparisons"),
+)
+
+
+class LazyVisSceneSettings(bpy.types.PropertyGroup):
+    """Render settings of the Lazy Visibility engine (``scene.lazyvis``)."""
+
+    integrator: EnumProperty(name="Integrator", items=INTEGRATOR_ITEMS, default=_DEFAULTS.integrator,
+                             description="How the visible part of each light is integrated")
+    shadow_rays: IntProperty(name="Shadow Rays", default=_DEFAULTS.shadow_rays, min=1, soft_max=64,
+                             description="Shadow rays per pixel and light that look for blockers (pass 1), "
+                                         "stratified over the light")
+    mc_samples: IntProperty(name="Samples", default=_DEFAULTS.mc_samples, min=1, soft_max=1024,
+                            description="Samples per pixel and light for the Monte Carlo integrators")
+    connectivity: EnumProperty(name="Connectivity", default=str(_DEFAULTS.connectivity),
+                               items=(("8", "8 Neighbours", "Flood fill over the 8 neighbouring pixels "
+                                                            "(the paper's text)"),
+                                      ("4", "4 Neighbours", "Flood fill over the 4 edge neighbours "
+                                                            "(the paper's Fig. 3)")),
+                               description="Pixels a blocker found at one pixel is propagated to")
+    umbra_detection: BoolProperty(name="Umbra Detection", default=_DEFAULTS.umbra_detection,
+                                  description="Mark a light hidden where one blocker covers it entirely "
+                                              "(paper section 5)")
+    merge_quads: BoolProperty(name="Merge Quads", default=_DEFAULTS.merge_quads,
+                              description="Treat coplanar triangle pairs that form convex quads as one blocker "
+                                          "polygon (faster; the image is the same up to rounding)")
+    seed: IntProperty(name="Seed", default=_DEFAULTS.seed, min=0,
+                      description="Random seed; with the frame number it fixes every random number")
+    disk_vertices: IntProperty(name="Disk Vertices", default=DISK_VERTICES_DEFAULT, min=3, soft_max=128,
+                               description="Polygon vertices for disk and ellipse area lights (the polygon "
+                                           "has the ellipse's area)")
+    memory_budget_mb: FloatProperty(name="Memory Budget", default=_DEFAULTS.memory_budget_mb, min=16.0,
+                                    soft_max=65536.0, step=1000, precision=0,
+                                    description="Working memory in MB the passes may use for their batches")
+    pixel_batch: IntProperty(name="Pixel Batch", default=_DEFAULTS.pixel_batch, min=256, soft_max=1 << 20,
+                             description="Pixels per batch: how often progress is shown and a cancel is seen")
+    window_margin: IntProperty(name="Region Margin", default=_DEFAULTS.window_margin, min=0, soft_max=256,
+                               subtype='PIXEL',
+                               description="When rendering a region (render border), blockers are also looked "
+                                           "for this many pixels around it, so that the region matches the "
+                                           "full frame")
+
+
+class LazyVisViewLayerSettings(bpy.types.PropertyGroup):
+    """Passes of the Lazy Visibility engine beyond Blender's own (``view_layer.lazyvis``)."""
+
+    use_pass_blocker_count: BoolProperty(name="Blocker Count", default=True,
+                                         description="Blocker-light pairs found per pixel by pass 1",
+                                         update=lambda self, context: context.view_layer.update_render_passes())
+
+
+def settings_from_scene(scene) -> Settings:
+    """The core ``Settings`` for a Blender scene: every ``scene.lazyvis`` property named like a Settings
+    field, plus frame, film transparency and threads from Blender's own render settings."""
+    props = scene.lazyvis
+    values = {name: getattr(props, name) for name in Settings.field_names()
+              if name in LazyVisSceneSettings.__annotations__}
+    values["connectivity"] = int(values["connectivity"])  # an enum of "4" / "8"
+    values.update(frame=scene.frame_current, transparent_background=scene.render.film_transparent,
+                  threads=0 if scene.render.threads_mode == 'AUTO' else scene.render.threads)
+    return Settings(**values)
+
+
+classes = (LazyVisSceneSettings, LazyVisViewLayerSettings)
+
+
+def register() -> None:
+    for cls in classes:
+        bpy.utils.register_class(cls)
+    bpy.types.Scene.lazyvis = PointerProperty(type=LazyVisSceneSettings, name="Lazy Visibility")
+    bpy.types.ViewLayer.lazyvis = PointerProperty(type=LazyVisViewLayerSettings, name="Lazy Visibility")
+
+
+def unregister() -> None:
+    del bpy.types.ViewLayer.lazyvis
+    del bpy.types.Scene.lazyvis
+    for cls in reversed(classes):
+        bpy.utils.unregister_class(cls)

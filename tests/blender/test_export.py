@@ -1,0 +1,535 @@
+"""The exporter against Blender's own numbers: camera frames, light areas and radiance, triangle and
+instance counts, materials, visibility and bad input."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+from blender_helpers import add_area_light, add_camera, assign, node_material  # noqa: E402
+
+from lazyvis_addon.blender.export import (  # noqa: E402
+    DEFAULT_ALBEDO, border_window, ellipse_polygon, export_depsgraph, polygon_area_normal, screen_window)
+from lazyvis_addon.core.progress import Progress  # noqa: E402
+from lazyvis_addon.core.scene import Scene  # noqa: E402
+
+
+def export(scene, **options):
+    """Export the scene's viewport depsgraph; returns (Export, warnings)."""
+    progress = Progress()
+    result = export_depsgraph(bpy.context.evaluated_depsgraph_get(), progress, **options)
+    return result, progress.warnings
+
+
+def triangle_count(obj):
+    mesh = obj.evaluated_get(bpy.context.evaluated_depsgraph_get()).to_mesh()
+    mesh.calc_loop_triangles()
+    count = len(mesh.loop_triangles)
+    obj.evaluated_get(bpy.context.evaluated_depsgraph_get()).to_mesh_clear()
+    return count
+
+
+# -- camera --------------------------------------------------------------------------------------------
+
+
+def view_frame_window(camera, scene):
+    """(left, right, bottom, top) from Blender's Camera.view_frame (at z = -1 for perspective)."""
+    corners = np.array([tuple(v) for v in camera.data.view_frame(scene=scene)])
+    xy = corners[:, :2] / -corners[:, 2:3] if camera.data.type == "PERSP" else corners[:, :2]
+    return np.array([xy[:, 0].min(), xy[:, 0].max(), xy[:, 1].min(), xy[:, 1].max()])
+
+
+CAMERA_CASES = list(itertools.product(
+    ["PERSP", "ORTHO"], ["AUTO", "HORIZONTAL", "VERTICAL"], [(64, 48), (30, 50)], [(1.0, 1.0), (2.0, 1.0)],
+    [(0.0, 0.0), (0.1, -0.25)], [100, 50]))
+
+
+@pytest.mark.parametrize("kind, fit, size, aspect, shift, percentage", CAMERA_CASES)
+def test_camera_screen_window_matches_view_frame(scene, kind, fit, size, aspect, shift, percentage):
+    camera = add_camera(scene, type=kind, sensor_fit=fit, lens=35.0, sensor_width=36.0, sensor_height=20.0,
+                        ortho_scale=7.0, shift_x=shift[0], shift_y=shift[1])
+    render = scene.render
+    render.resolution_x, render.resolution_y = size
+    render.pixel_aspect_x, render.pixel_aspect_y = aspect
+    render.resolution_percentage = percentage
+    exported, _ = export(scene)
+    core_camera = exported.scene.camera
+    assert (core_camera.width, core_camera.height) == (size[0] * percentage // 100, size[1] * percentage // 100)
+    assert core_camera.projection == ("orthographic" if kind == "ORTHO" else "perspective")
+    np.testing.assert_allclose(core_camera.screen_window, view_frame_window(camera, scene), atol=2e-6)
+
+
+def test_camera_transform_is_the_camera_matrix_without_scale(scene):
+    camera = add_camera(scene, location=(1.0, -2.0, 3.0), rotation=(0.4, 0.2, -0.3))
+    camera.scale = (2.0, 3.0, 0.5)
+    exported, _ = export(scene)
+    matrix = exported.scene.camera.world_from_camera
+    expected = np.array(camera.matrix_world.normalized())
+    np.testing.assert_allclose(matrix[:3, :3], expected[:3, :3], atol=1e-6)
+    np.testing.assert_allclose(matrix[:3, 3], (1.0, -2.0, 3.0), atol=1e-6)
+
+
+def test_camera_sees_along_minus_z_with_y_up(scene):
+    """The centre ray of the exported camera points where Blender's camera looks."""
+    add_camera(scene, location=(0.0, 0.0, 5.0), rotation=(0.0, 0.0, 0.0))
+    exported, _ = export(scene)
+    from lazyvis_addon.core.camera import camera_rays
+    camera = exported.scene.camera
+    origins, directions = camera_rays(camera, np.array([16]), np.array([0]))  # top row, middle column
+    assert directions[0, 2] < 0 and directions[0, 1] > 0  # down, and towards the top of the image (+Y)
+
+
+@pytest.mark.parametrize("border", [(0.25, 0.75, 0.0, 0.5), (0.1, 0.3, 0.6, 0.95), (0.0, 1.0, 0.0, 1.0)])
+def test_border_window_counts_rows_from_the_top(scene, border):
+    add_camera(scene)
+    render = scene.render
+    render.use_border = True
+    render.border_min_x, render.border_max_x, render.border_min_y, render.border_max_y = border
+    exported, _ = export(scene)
+    x0, y0, x1, y1 = exported.scene.camera.window
+    width, height = 32, 24
+    assert (x0, x1) == (int(np.float32(border[0]) * width), int(np.float32(border[1]) * width))
+    # Blender's border y is measured up from the bottom row.
+    assert (height - y1, height - y0) == (int(np.float32(border[2]) * height), int(np.float32(border[3]) * height))
+
+
+def test_border_window_too_small_is_a_clear_error():
+    with pytest.raises(ValueError, match="render border selects no pixels"):
+        border_window(10, 10, (0.5, 0.52, 0.0, 1.0))
+
+
+def test_screen_window_auto_fit_is_the_core_camera_convention():
+    """AUTO fit agrees with the core's own Camera.perspective (fov over the longer side)."""
+    from lazyvis_addon.core.scene import Camera
+    for width, height in ((64, 48), (30, 50)):
+        window = screen_window("perspective", 50.0, 36.0, 24.0, "AUTO", 1.0, 0.1, 0.2, width, height)
+        fov = 2.0 * math.atan(18.0 / 50.0)
+        np.testing.assert_allclose(window, Camera.perspective(np.eye(4), width, height, fov, (0.1, 0.2)).screen_window)
+
+
+def test_no_camera_is_a_clear_error(scene):
+    with pytest.raises(ValueError, match="no camera"):
+        export(scene)
+
+
+# -- lights --------------------------------------------------------------------------------------------
+
+
+def true_area(shape, size_x, size_y):
+    """Area of the light's true shape with world-space side lengths / diameters size_x, size_y."""
+    return size_x * size_y * (math.pi / 4 if shape in ("DISK", "ELLIPSE") else 1.0)
+
+
+@pytest.mark.parametrize("shape", ["SQUARE", "RECTANGLE", "DISK", "ELLIPSE"])
+@pytest.mark.parametrize("normalize", [True, False])
+def test_area_light_polygon_area_and_radiance(scene, shape, normalize):
+    add_camera(scene)
+    scale = (1.5, 0.5, 2.0)
+    light = add_area_light(location=(0.3, -0.2, 2.0), rotation=(0.3, -0.4, 0.9), scale=scale, shape=shape,
+                           size=0.8, size_y=0.3, energy=40.0, color=(1.0, 0.5, 0.25), exposure=0.7,
+                           normalize=normalize)
+    exported, warnings = export(scene, disk_vertices=24)
+    lights = exported.scene.lights
+    assert len(lights) == 1 and not lights.two_sided[0]
+    count = int(lights.vertex_count[0])
+    assert count == (4 if shape in ("SQUARE", "RECTANGLE") else 24)
+    polygon = lights.vertices[0, :count]
+    area, newell = polygon_area_normal(polygon)
+    square_like = shape in ("SQUARE", "DISK")
+    expected_area = true_area(shape, 0.8 * scale[0], (0.8 if square_like else 0.3) * scale[1])
+    assert area == pytest.approx(expected_area, rel=1e-6)
+    power = 40.0 * 2.0 ** 0.7 / math.pi
+    expected = np.array([1.0, 0.5, 0.25]) * power / (expected_area if normalize else 1.0)
+    np.testing.assert_allclose(lights.radiance[0], expected, rtol=1e-6)
+    # Counter-clockwise about the emitting normal, which is the light's local -Z.
+    emit = -np.array(light.matrix_world.to_3x3().col[2])
+    assert np.dot(newell, emit) > 0
+    np.testing.assert_allclose(polygon.mean(axis=0), (0.3, -0.2, 2.0), atol=1e-6)
+    assert not warnings
+
+
+def test_area_light_vertices_are_counter_clockwise_for_the_core():
+    """Lights.vertices order: normalize((v1 - v0) x (v2 - v0)) is the emitting normal (local -Z)."""
+    polygon = ellipse_polygon(1.0, 0.5, 8)
+    normal = np.cross(polygon[1] - polygon[0], polygon[2] - polygon[0])
+    assert normal[2] < 0
+    assert polygon_area_normal(polygon)[0] == pytest.approx(math.pi / 4 * 0.5)
+
+
+def test_mirrored_area_light_still_emits_to_local_minus_z(scene):
+    add_camera(scene)
+    light = add_area_light(location=(0.0, 0.0, 2.0), scale=(-1.0, 1.0, 1.0), size=1.0, energy=10.0)
+    exported, _ = export(scene)
+    lights = exported.scene.lights
+    polygon = lights.vertices[0, :4]
+    normal = np.cross(polygon[1] - polygon[0], polygon[2] - polygon[0])
+    assert np.dot(normal, -np.array(light.matrix_world.to_3x3().col[2])) > 0
+
+
+def test_light_temperature_tints_the_colour(scene):
+    add_camera(scene)
+    light = add_area_light(size=1.0, energy=10.0, color=(1.0, 1.0, 1.0), use_temperature=True, temperature=3000)
+    exported, _ = export(scene)
+    expected = np.array(light.data.temperature_color[:3]) * 10.0 / math.pi
+    np.testing.assert_allclose(exported.scene.lights.radiance[0], expected, rtol=1e-6)
+
+
+def test_light_spread_warns(scene):
+    add_camera(scene)
+    add_area_light(name="Narrow", size=1.0, energy=10.0, spread=math.radians(60))
+    _, warnings = export(scene)
+    assert any("spread" in w and "Narrow" in w for w in warnings)
+
+
+def test_point_spot_sun_lights_one_warning_naming_them(scene):
+    add_camera(scene)
+    for kind in ("POINT", "SPOT", "SUN"):
+        bpy.ops.object.light_add(type=kind)
+        bpy.context.object.name = f"My{kind.title()}"
+    exported, warnings = export(scene)
+    assert len(exported.scene.lights) == 0
+    named = [w for w in warnings if "MyPoint" in w]
+    assert len(named) == 1
+    assert "MySpot" in named[0] and "MySun" in named[0] and "area lights" in named[0]
+
+
+def test_zero_size_light_warns_and_is_skipped(scene):
+    add_camera(scene)
+    add_area_light(name="Flat", size=1.0, energy=10.0, scale=(1.0, 0.0, 1.0))
+    add_area_light(name="Good", size=1.0, energy=10.0)
+    exported, warnings = export(scene)
+    assert exported.light_names == ["Good"]
+    assert any("zero size" in w and "Flat" in w for w in warnings)
+
+
+def test_instanced_lights_are_all_exported(scene):
+    add_camera(scene)
+    light = add_area_light(size=0.5, energy=5.0)
+    collection = bpy.data.collections.new("Lamps")
+    collection.objects.link(light)
+    scene.collection.objects.unlink(light)
+    for x in (-2.0, 2.0):
+        bpy.ops.object.collection_instance_add(collection="Lamps", location=(x, 0.0, 0.0))
+    exported, _ = export(scene)
+    centres = sorted(exported.scene.lights.vertices[:, :4].mean(axis=1)[:, 0])
+    np.testing.assert_allclose(centres, [-2.0, 2.0], atol=1e-6)
+
+
+# -- geometry ------------------------------------------------------------------------------------------
+
+
+def test_triangle_counts_match_loop_triangles_with_modifiers(scene):
+    add_camera(scene)
+    bpy.ops.mesh.primitive_cube_add()
+    cube = bpy.context.object
+    cube.modifiers.new("sub", "SUBSURF").levels = 1
+    bpy.ops.mesh.primitive_cylinder_add(vertices=7, location=(3.0, 0.0, 0.0))  # n-gon caps
+    cylinder = bpy.context.object
+    exported, _ = export(scene)
+    assert len(exported.scene.triangles) == triangle_count(cube) + triangle_count(cylinder)
+    assert exported.counts["objects"] == 2 and exported.counts["instances"] == 0
+
+
+def test_world_coordinates_match_blender(scene):
+    add_camera(scene)
+    bpy.ops.mesh.primitive_plane_add(size=2.0, location=(1.0, 2.0, 3.0), rotation=(0.3, 0.2, 0.1))
+    plane = bpy.context.object
+    plane.scale = (2.0, 1.0, 1.0)
+    exported, _ = export(scene)
+    expected = np.array([tuple(plane.matrix_world @ v.co) for v in plane.data.vertices])
+    got = exported.scene.triangles.reshape(-1, 3)
+    # Every exported corner is one of Blender's world-space vertices.
+    distance = np.linalg.norm(got[:, None, :] - expected[None, :, :], axis=2).min(axis=1)
+    assert distance.max() < 1e-6
+
+
+def test_curves_text_metaballs_counted_once(scene):
+    """Blender 5 hands their evaluated meshes over as instances; each triangle must appear once."""
+    add_camera(scene)
+    bpy.ops.curve.primitive_bezier_curve_add()
+    curve = bpy.context.object
+    curve.data.bevel_depth = 0.1
+    bpy.ops.object.text_add(location=(0.0, 3.0, 0.0))
+    text = bpy.context.object
+    bpy.ops.object.metaball_add(location=(0.0, 6.0, 0.0))
+    ball = bpy.context.object
+    expected = sum(triangle_count(obj) for obj in (curve, text, ball))
+    assert expected > 0
+    exported, _ = export(scene)
+    assert len(exported.scene.triangles) == expected
+
+
+def test_instances_are_counted_and_placed(scene):
+    add_camera(scene)
+    bpy.ops.mesh.primitive_cube_add(size=1.0)
+    cube = bpy.context.object
+    collection = bpy.data.collections.new("Kit")
+    collection.objects.link(cube)
+    scene.collection.objects.unlink(cube)
+    for z in (10.0, 20.0, 30.0):
+        bpy.ops.object.collection_instance_add(collection="Kit", location=(0.0, 0.0, z))
+    exported, _ = export(scene)
+    assert exported.counts["instances"] == 3
+    assert len(exported.scene.triangles) == 3 * 12
+    centres = np.sort(np.unique(np.round(exported.scene.triangles[:, :, 2].mean(axis=1) / 10.0)))
+    np.testing.assert_array_equal(centres, [1.0, 2.0, 3.0])
+
+
+def test_face_instancing_with_hidden_instancer(scene):
+    add_camera(scene)
+    bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=1)
+    ico = bpy.context.object
+    bpy.ops.mesh.primitive_grid_add(x_subdivisions=2, y_subdivisions=2, size=4.0, location=(0, 0, -5))
+    grid = bpy.context.object
+    grid.instance_type = "FACES"
+    grid.show_instancer_for_render = grid.show_instancer_for_viewport = False  # tests read a viewport depsgraph
+    ico.parent = grid
+    exported, _ = export(scene)
+    # Four faces -> four instanced icospheres of 20 triangles; the grid itself is not rendered, and
+    # Blender still shows the child icosphere itself (measured: show_self is True for it).
+    assert exported.counts["instances"] == 4
+    assert exported.counts["objects"] == 1
+    assert len(exported.scene.triangles) == 5 * 20
+
+
+def test_hide_render_is_honoured(scene):
+    add_camera(scene)
+    bpy.ops.mesh.primitive_cube_add()
+    bpy.ops.mesh.primitive_plane_add(location=(3.0, 0.0, 0.0))
+    bpy.context.object.hide_render = True
+    exported, _ = export(scene)
+    assert len(exported.scene.triangles) == 12
+
+
+def test_smooth_normals_only_for_smooth_faces(scene):
+    add_camera(scene)
+    bpy.ops.mesh.primitive_uv_sphere_add(segments=8, ring_count=4, location=(0.0, 0.0, 0.0))
+    sphere = bpy.context.object
+    bpy.ops.object.shade_smooth()
+    sphere.rotation_euler = (0.3, 0.0, 0.5)
+    sphere.scale = (1.0, 2.0, 1.0)
+    bpy.ops.mesh.primitive_cube_add(location=(4.0, 0.0, 0.0))  # flat
+    exported, _ = export(scene)
+    triangles, normals = exported.scene.triangles, exported.scene.shading_normals
+    assert normals is not None and normals.shape == triangles.shape
+    np.testing.assert_allclose(np.linalg.norm(normals, axis=2), 1.0, atol=1e-6)
+    centre = triangles.mean(axis=1)
+    on_sphere = np.linalg.norm(centre, axis=1) < 3.0
+    geometric = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+    geometric /= np.linalg.norm(geometric, axis=1, keepdims=True)
+    # Cube: flat, the shading normal is the geometric normal at all three corners.
+    np.testing.assert_allclose(normals[~on_sphere], np.repeat(geometric[~on_sphere, None], 3, axis=1), atol=1e-6)
+    # Sphere: corner normals of a smooth ellipsoid differ between corners and point outwards (M^-T n).
+    assert np.abs(normals[on_sphere] - geometric[on_sphere, None]).max() > 0.05
+    outward = np.einsum("tck,tck->tc", normals[on_sphere], triangles[on_sphere])
+    assert (outward > 0).all()
+    assert (np.einsum("tk,tck->tc", geometric[on_sphere], normals[on_sphere]) > 0).all()
+
+
+def test_negative_scale_keeps_normals_and_winding_consistent(scene):
+    add_camera(scene)
+    bpy.ops.mesh.primitive_uv_sphere_add(segments=8, ring_count=4)
+    bpy.ops.object.shade_smooth()
+    bpy.context.object.scale = (-1.0, 1.0, 1.0)
+    exported, _ = export(scene)
+    triangles, normals = exported.scene.triangles, exported.scene.shading_normals
+    geometric = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+    assert (np.einsum("tk,tck->tc", geometric, normals) > 0).all()
+    assert (np.einsum("tck,tck->tc", normals, triangles) > 0).all()  # still outward
+
+
+def test_no_smooth_faces_means_no_shading_normals(scene):
+    add_camera(scene)
+    bpy.ops.mesh.primitive_cube_add()
+    exported, _ = export(scene)
+    assert exported.scene.shading_normals is None
+
+
+def test_nan_vertex_is_a_clear_error_naming_the_object(scene):
+    add_camera(scene)
+    bpy.ops.mesh.primitive_cube_add()
+    cube = bpy.context.object
+    cube.name = "Broken"
+    cube.data.vertices[0].co = (float("nan"), 0.0, 0.0)
+    with pytest.raises(ValueError, match="'Broken' has NaN or infinite vertex coordinates"):
+        export(scene)
+
+
+# -- materials -----------------------------------------------------------------------------------------
+
+
+def test_material_table_and_slots(scene):
+    add_camera(scene)
+    bpy.ops.mesh.primitive_cube_add()
+    cube = bpy.context.object
+    red = node_material("Red", Color=(0.8, 0.1, 0.1))
+    blue = node_material("Blue", "ShaderNodeBsdfPrincipled", Base_Color=(0.1, 0.1, 0.9), Specular_IOR_Level=0.0)
+    assign(cube, red, blue)
+    cube.data.polygons[0].material_index = 1
+    cube.data.polygons[1].material_index = 1
+    bpy.ops.mesh.primitive_plane_add(location=(0.0, 0.0, -2.0))  # no material
+    exported, warnings = export(scene)
+    table = {m.name: i for i, m in enumerate(exported.materials)}
+    albedo = exported.scene.materials.albedo
+    np.testing.assert_allclose(albedo[table["Red"]], (0.8, 0.1, 0.1), rtol=1e-6)
+    np.testing.assert_allclose(albedo[table["Blue"]], (0.1, 0.1, 0.9), rtol=1e-6)
+    np.testing.assert_allclose(albedo[table["(no material)"]], DEFAULT_ALBEDO)
+    counts = np.bincount(exported.scene.material_index, minlength=len(table))
+    assert counts[table["Blue"]] == 4 and counts[table["Red"]] == 8 and counts[table["(no material)"]] == 2
+    assert exported.materials[table["Blue"]].specular_ior_level == 0.0
+    assert not warnings
+
+
+def test_principled_specular_warns_once_listing_materials(scene):
+    add_camera(scene)
+    bpy.ops.mesh.primitive_cube_add()
+    cube = bpy.context.object
+    assign(cube, node_material("Shiny", "ShaderNodeBsdfPrincipled", Base_Color=(0.5, 0.5, 0.5)),
+           node_material("Metal", "ShaderNodeBsdfPrincipled", Base_Color=(0.5, 0.5, 0.5), Metallic=1.0,
+                         IOR=1.0),
+           node_material("Matte", "ShaderNodeBsdfPrincipled", Base_Color=(0.5, 0.5, 0.5), IOR=1.0))
+    cube.data.polygons[1].material_index = 1
+    cube.data.polygons[2].material_index = 2
+    exported, warnings = export(scene)
+    principled = [w for w in warnings if "Principled" in w]
+    assert len(principled) == 1
+    assert "Shiny" in principled[0] and "Metal" in principled[0] and "Matte" not in principled[0]
+    shiny = next(m for m in exported.materials if m.name == "Shiny")
+    assert (shiny.metallic, shiny.roughness, shiny.specular_ior_level, shiny.ior) == \
+        pytest.approx((0.0, 0.5, 0.5, 1.5))
+
+
+def test_unreadable_materials_use_viewport_colour_with_one_warning(scene):
+    add_camera(scene)
+    bpy.ops.mesh.primitive_cube_add()
+    cube = bpy.context.object
+    glossy = node_material("Glossy", "ShaderNodeBsdfGlossy")
+    glossy.diffuse_color = (0.2, 0.3, 0.4, 1.0)
+    textured = node_material("Textured", Color=(1.0, 1.0, 1.0))
+    texture = textured.node_tree.nodes.new("ShaderNodeTexChecker")
+    textured.node_tree.links.new(texture.outputs["Color"],
+                                 next(n for n in textured.node_tree.nodes
+                                      if n.bl_idname == "ShaderNodeBsdfDiffuse").inputs["Color"])
+    assign(cube, glossy, textured)
+    cube.data.polygons[0].material_index = 1
+    exported, warnings = export(scene)
+    listed = [w for w in warnings if "viewport" in w]
+    assert len(listed) == 1 and "Glossy" in listed[0] and "Textured" in listed[0]
+    table = {m.name: i for i, m in enumerate(exported.materials)}
+    np.testing.assert_allclose(exported.scene.materials.albedo[table["Glossy"]], (0.2, 0.3, 0.4), rtol=1e-6)
+
+
+def test_reroute_nodes_are_followed(scene):
+    add_camera(scene)
+    bpy.ops.mesh.primitive_cube_add()
+    material = node_material("Routed", Color=(0.3, 0.6, 0.9))
+    tree = material.node_tree
+    output = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial")
+    diffuse = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeBsdfDiffuse")
+    reroute = tree.nodes.new("NodeReroute")
+    tree.links.new(diffuse.outputs[0], reroute.inputs[0])
+    tree.links.new(reroute.outputs[0], output.inputs["Surface"])
+    assign(bpy.context.object, material)
+    exported, warnings = export(scene)
+    np.testing.assert_allclose(exported.scene.materials.albedo[0], (0.3, 0.6, 0.9), rtol=1e-6)
+    assert not warnings
+
+
+def test_emission_mesh_becomes_two_sided_triangle_lights(scene):
+    add_camera(scene)
+    bpy.ops.mesh.primitive_plane_add(size=1.0, location=(0.0, 0.0, 2.0))
+    panel = bpy.context.object
+    assign(panel, node_material("Glow", "ShaderNodeEmission", Color=(1.0, 0.5, 0.25), Strength=8.0))
+    bpy.ops.mesh.primitive_cube_add()
+    exported, _ = export(scene)
+    lights = exported.scene.lights
+    assert len(lights) == 2 and lights.two_sided.all() and (lights.vertex_count == 3).all()
+    np.testing.assert_allclose(lights.radiance, [[8.0, 4.0, 2.0]] * 2)
+    assert len(exported.scene.triangles) == 12  # the panel is a light, not a surface
+    assert exported.light_names == ["Glow", "Glow"]
+    area = sum(polygon_area_normal(lights.vertices[i, :3])[0] for i in range(2))
+    assert area == pytest.approx(1.0)
+
+
+def test_world_background(scene):
+    add_camera(scene)
+    world = bpy.data.worlds.new("Sky")
+    scene.world = world
+    background = next(n for n in world.node_tree.nodes if n.bl_idname == "ShaderNodeBackground")
+    background.inputs["Color"].default_value = (0.2, 0.4, 0.6, 1.0)
+    background.inputs["Strength"].default_value = 0.5
+    exported, warnings = export(scene)
+    np.testing.assert_allclose(exported.scene.background, (0.1, 0.2, 0.3), rtol=1e-6)
+    assert any("does not light" in w for w in warnings)
+    scene.world = None
+    exported, warnings = export(scene)
+    np.testing.assert_array_equal(exported.scene.background, 0.0)
+
+
+def test_exported_scene_survives_core_validation(scene):
+    add_camera(scene)
+    bpy.ops.mesh.primitive_monkey_add()
+    bpy.ops.object.shade_smooth()
+    add_area_light(shape="ELLIPSE", size=1.0, size_y=0.5, energy=10.0)
+    exported, _ = export(scene)
+    validated = exported.scene.validated(Progress())
+    assert isinstance(validated, Scene)
+    assert len(validated.triangles) == len(exported.scene.triangles)
+    assert len(validated.lights) == 1
+
+
+def test_geometry_nodes_instances_keep_their_materials(scene):
+    add_camera(scene)
+    bpy.ops.mesh.primitive_grid_add(x_subdivisions=3, y_subdivisions=3)  # 16 points
+    grid = bpy.context.object
+    group = bpy.data.node_groups.new("Scatter", "GeometryNodeTree")
+    group.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+    group.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    nodes, links = group.nodes, group.links
+    source, sink = nodes.new("NodeGroupInput"), nodes.new("NodeGroupOutput")
+    on_points, cube = nodes.new("GeometryNodeInstanceOnPoints"), nodes.new("GeometryNodeMeshCube")
+    set_material = nodes.new("GeometryNodeSetMaterial")
+    set_material.inputs["Material"].default_value = node_material("Pebble", Color=(0.9, 0.1, 0.1))
+    cube.inputs["Size"].default_value = (0.2, 0.2, 0.2)
+    links.new(source.outputs[0], on_points.inputs["Points"])
+    links.new(cube.outputs[0], set_material.inputs["Geometry"])
+    links.new(set_material.outputs[0], on_points.inputs["Instance"])
+    links.new(on_points.outputs[0], sink.inputs[0])
+    grid.modifiers.new("Scatter", "NODES").node_group = group
+    exported, _ = export(scene)
+    assert exported.counts["instances"] == 16
+    table = {m.name: i for i, m in enumerate(exported.materials)}
+    assert (exported.scene.material_index == table["Pebble"]).sum() == 16 * 12
+    assert len(exported.scene.triangles) == 16 * 12
+
+
+def test_unsupported_object_types_warn(scene):
+    add_camera(scene)
+    fur = bpy.data.objects.new("Fur", bpy.data.hair_curves.new("Fur"))
+    scene.collection.objects.link(fur)
+    _, warnings = export(scene)
+    assert any("Fur" in w and "not rendered" in w for w in warnings)
+
+
+def test_ray_visibility_and_cast_shadow_warn(scene):
+    add_camera(scene)
+    bpy.ops.mesh.primitive_cube_add()
+    bpy.context.object.name = "Ghost"
+    bpy.context.object.visible_shadow = False
+    light = add_area_light(name="Panel", size=1.0, energy=10.0, use_shadow=False)
+    light.visible_camera = True
+    _, warnings = export(scene)
+    assert any("Ray Visibility" in w and "Ghost" in w for w in warnings)
+    assert any("Cast Shadow" in w and "Panel" in w for w in warnings)
+    assert any("seen directly" in w and "Panel" in w for w in warnings)
+
+
+def test_panoramic_camera_is_a_clear_error(scene):
+    add_camera(scene, type="PANO")
+    with pytest.raises(ValueError, match="perspective and orthographic cameras only"):
+        export(scene)
