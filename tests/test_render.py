@@ -309,3 +309,19 @@ def test_core_imports_and_renders_without_bpy():
     result = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     assert float(result.stdout.strip()) > 0
+
+
+def test_mesh_emitter_is_seen_by_the_camera_and_lights_like_a_light():
+    """An emissive quad is geometry (seen with its radiance, from both sides) and a two-sided light."""
+    base = plane_under_light(resolution=16, light_size=1.0, height=1.0, radiance=3.0)
+    emitter = quad_triangles(base.lights.vertices[0])
+    scene = plane_under_light(resolution=16, light_size=1.0, height=1.0, radiance=3.0, blocker=emitter)
+    scene.material_index[2:] = 1
+    scene.materials = Materials(np.array([[0.5] * 3, [0.0] * 3]), emission=np.array([[0.0] * 3, [3.0] * 3]))
+    scene.lights = Lights.from_polygons([base.lights.vertices[0]], [(3.0,) * 3], two_sided=[True])
+    out = render(scene).combined[..., 0]
+    expected = render(base).combined[..., 0]
+    seen = render(scene).depth < 4.5  # the camera at z = 5 sees the emitter at z = 1
+    assert seen.sum() == 16  # the 1 x 1 emitter covers 4 x 4 of the 4 x 4-unit view at 16 px
+    np.testing.assert_allclose(out[seen], 3.0, rtol=1e-6)
+    np.testing.assert_allclose(out[~seen], expected[~seen], rtol=1e-6)

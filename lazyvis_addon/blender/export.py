@@ -442,13 +442,12 @@ class _DepsgraphReader:
             flat = ~local.smooth
             normals[flat] = _geometric_normals(triangles[flat])[:, None, :]
 
+        # Emitting triangles are both geometry (seen by the camera, blocking other lights, as in Cycles)
+        # and two-sided triangle lights.
         emitting = np.array([self.materials[i].is_emitter for i in slots])[np.clip(local.slot, 0, len(slots) - 1)]
         if emitting.any():
             self.emitter_parts.append((triangles[emitting], material[emitting]))
             self.counts["emitter_triangles"] += int(emitting.sum())
-            keep = ~emitting
-            triangles, material = triangles[keep], material[keep]
-            normals = None if normals is None else normals[keep]
         self.parts.append((triangles, material, normals))
         self.counts["mesh_triangles"] += len(triangles)
 
@@ -506,10 +505,6 @@ class _DepsgraphReader:
             progress.warn("Principled BSDF rendered as diffuse base colour only, its specular (or metallic, "
                           "coat, ...) part is ignored; set Specular IOR Level to 0 to match Cycles: "
                           + ", ".join(principled))
-        mixed = sorted(m.name for m in self.materials if m.is_emitter and m.kind == "principled")
-        if mixed:
-            progress.warn("emitting Principled BSDF materials are rendered as lights only (their reflection "
-                          "is ignored): " + ", ".join(mixed))
         for message, names in self.skipped.items():
             progress.warn(f"{message}: {', '.join(sorted(names))}")
 
@@ -525,7 +520,8 @@ class _DepsgraphReader:
                                       for p in self.parts])
         lights, names = self.lights()
         albedo = np.array([m.albedo for m in self.materials]).reshape(-1, 3)
-        scene = Scene(triangles, material_index, Materials.diffuse(albedo), lights, camera, background, normals)
+        emission = np.array([m.emission for m in self.materials]).reshape(-1, 3)
+        scene = Scene(triangles, material_index, Materials(albedo, emission), lights, camera, background, normals)
         return Export(scene, list(self.materials), names, dict(self.counts))
 
     def lights(self) -> tuple[Lights, list[str]]:

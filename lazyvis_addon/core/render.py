@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import resource
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -149,9 +149,7 @@ def _primary(scene: Scene, tracer, extent: float, settings: Settings, progress: 
         parts.append(shade_hits(scene, origins, directions, hits.index_triangle, hits.u, hits.v, extent))
         progress.advance(len(origins))
     progress.end_stage()
-    return SurfacePoints(*(np.concatenate([getattr(p, name) for p in parts]) for name in
-                           ("hit", "position", "geometric_normal", "shading_normal", "index_triangle", "albedo",
-                            "offset")))
+    return SurfacePoints(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(SurfacePoints)))
 
 
 def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: BlockerMap | None, settings: Settings,
@@ -208,7 +206,7 @@ def _compose(scene: Scene, surface: SurfacePoints, radiance: np.ndarray, blocker
     n_pixels = height * width
     hit = surface.hit
     combined = np.zeros((n_pixels, 4), np.float32)
-    combined[hit, :3] = radiance[hit]
+    combined[hit, :3] = radiance[hit] + surface.emission[hit]
     combined[hit, 3] = 1.0
     if not settings.transparent_background:
         combined[~hit, :3] = scene.background

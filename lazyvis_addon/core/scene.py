@@ -179,9 +179,21 @@ class Materials:
     ----------
     albedo : (M, 3) float64
         Diffuse reflectance per colour channel in [0, 1]; the BRDF is albedo / pi.
+    emission : (M, 3) float64 or None
+        Radiance the surface emits towards the camera from both sides (mesh emitters, as Cycles does);
+        their light on other surfaces comes from the matching two-sided polygon lights.
     """
 
     albedo: np.ndarray
+    emission: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        self.albedo = np.asarray(self.albedo, dtype=np.float64).reshape(-1, 3)
+        if self.emission is None:
+            self.emission = np.zeros_like(self.albedo)
+        self.emission = np.asarray(self.emission, dtype=np.float64).reshape(-1, 3)
+        if self.emission.shape != self.albedo.shape:
+            raise ValueError(f"material emission has shape {self.emission.shape}, albedo {self.albedo.shape}")
 
     @classmethod
     def diffuse(cls, albedo) -> "Materials":
@@ -243,9 +255,11 @@ class Scene:
             raise ValueError(f"material_index has {len(material_index)} entries for {len(triangles)} triangles")
         _require_finite("triangle vertices", triangles)
         albedo = np.asarray(self.materials.albedo, dtype=np.float64).reshape(-1, 3)
+        emission = self.materials.emission
         _require_finite("material albedos", albedo)
-        if (albedo < 0).any():
-            raise ValueError("material albedos must not be negative")
+        _require_finite("material emissions", emission)
+        if (albedo < 0).any() or (emission < 0).any():
+            raise ValueError("material albedos and emissions must not be negative")
         if len(triangles) and (material_index.min() < 0 or material_index.max() >= len(albedo)):
             raise ValueError(f"material_index refers to materials outside 0..{len(albedo) - 1}")
         _require_finite("background colour", self.background[None])
@@ -270,7 +284,7 @@ class Scene:
                 shading_normals = shading_normals[keep]
 
         lights = _validated_lights(self.lights, progress)
-        return Scene(triangles, material_index, Materials(albedo), lights, self.camera, self.background,
+        return Scene(triangles, material_index, Materials(albedo, emission), lights, self.camera, self.background,
                      shading_normals)
 
     # -- files ---------------------------------------------------------------------------------------
@@ -279,6 +293,7 @@ class Scene:
         camera = self.camera
         arrays = dict(
             triangles=self.triangles, material_index=self.material_index, albedo=self.materials.albedo,
+            emission=self.materials.emission,
             light_vertices=self.lights.vertices, light_vertex_count=self.lights.vertex_count,
             light_radiance=self.lights.radiance, light_two_sided=self.lights.two_sided,
             world_from_camera=camera.world_from_camera, resolution=np.array([camera.width, camera.height]),
@@ -310,7 +325,8 @@ class Scene:
                             np.array(data["light_two_sided"], bool) if "light_two_sided" in data
                             else np.zeros(count, bool))
             return cls(np.array(data["triangles"]), np.array(data["material_index"]),
-                       Materials(np.array(data["albedo"], dtype=np.float64).reshape(-1, 3)), lights, camera,
+                       Materials(np.array(data["albedo"], dtype=np.float64).reshape(-1, 3),
+                                 np.array(data["emission"]) if "emission" in data else None), lights, camera,
                        np.array(data["background"]) if "background" in data else np.zeros(3),
                        np.array(data["shading_normals"]) if "shading_normals" in data else None)
 

@@ -27,6 +27,7 @@ class SurfacePoints:
                                       geometric normal's side.
     index_triangle : (N,) int64       -1 where nothing is hit.
     albedo : (N, 3) float64
+    emission : (N, 3) float64         radiance the surface itself emits (mesh emitters).
     offset : (N,) float64             shadow-ray origin offset along the geometric normal (world units).
     """
 
@@ -36,6 +37,7 @@ class SurfacePoints:
     shading_normal: np.ndarray
     index_triangle: np.ndarray
     albedo: np.ndarray
+    emission: np.ndarray
     offset: np.ndarray
 
     def __len__(self) -> int:
@@ -44,7 +46,7 @@ class SurfacePoints:
     def take(self, index: np.ndarray) -> "SurfacePoints":
         return SurfacePoints(self.hit[index], self.position[index], self.geometric_normal[index],
                              self.shading_normal[index], self.index_triangle[index], self.albedo[index],
-                             self.offset[index])
+                             self.emission[index], self.offset[index])
 
 
 def scene_extent(scene: Scene) -> float:
@@ -66,6 +68,7 @@ def shade_hits(scene: Scene, ray_origins: np.ndarray, ray_directions: np.ndarray
     geometric = np.zeros((n, 3))
     shading = np.zeros((n, 3))
     albedo = np.zeros((n, 3))
+    emission = np.zeros((n, 3))
     if hit.any() and len(scene.triangles):
         corners = scene.triangles[tri[hit]]
         uh, vh = u[hit][:, None], v[hit][:, None]
@@ -88,5 +91,7 @@ def shade_hits(scene: Scene, ray_origins: np.ndarray, ray_directions: np.ndarray
         else:
             shading[hit] = normal
         albedo[hit] = scene.materials.albedo[scene.material_index[tri[hit]]]
+        emission[hit] = scene.materials.emission[scene.material_index[tri[hit]]]
     offset = OFFSET_RELATIVE * np.abs(position).max(axis=1) + OFFSET_SCENE * extent
-    return SurfacePoints(hit, position, geometric, shading, np.where(hit, index_triangle, -1), albedo, offset)
+    return SurfacePoints(hit, position, geometric, shading, np.where(hit, index_triangle, -1), albedo, emission,
+                         offset)

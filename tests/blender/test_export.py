@@ -450,7 +450,11 @@ def test_emission_mesh_becomes_two_sided_triangle_lights(scene):
     lights = exported.scene.lights
     assert len(lights) == 2 and lights.two_sided.all() and (lights.vertex_count == 3).all()
     np.testing.assert_allclose(lights.radiance, [[8.0, 4.0, 2.0]] * 2)
-    assert len(exported.scene.triangles) == 12  # the panel is a light, not a surface
+    # The panel is also a surface the camera sees, emitting its radiance and reflecting nothing.
+    assert len(exported.scene.triangles) == 14
+    glow = [m.name for m in exported.materials].index("Glow")
+    np.testing.assert_allclose(exported.scene.materials.emission[glow], (8.0, 4.0, 2.0))
+    np.testing.assert_allclose(exported.scene.materials.albedo[glow], 0.0)
     assert exported.light_names == ["Glow", "Glow"]
     area = sum(polygon_area_normal(lights.vertices[i, :3])[0] for i in range(2))
     assert area == pytest.approx(1.0)
