@@ -161,6 +161,16 @@ def main() -> int:
     print(f"equal error (1%): standard MC needs ~{one_percent_samples:,.0f} samples/light, "
           f"~{one_percent_seconds:,.1f} s: analytic is {one_percent_seconds / analytic_seconds:,.1f}x faster")
 
+    # The MC baseline above is numpy code whose cost is mostly sampling overhead; an ideal MC renderer
+    # would pay only Embree's occlusion rays. Bound it from below with the measured ray rate.
+    rays_per_second = 2.0 * stats["shadow_rays"] / max(floor, 1e-9)  # floor traced ~2x shadow_rays rays
+    lit_couples = stats["shadow_rays"] / Settings().shadow_rays
+    ideal_equal_error = lit_couples * samples_equal_error / rays_per_second
+    ideal_one_percent = lit_couples * one_percent_samples / rays_per_second
+    print(f"ideal MC (Embree occlusion rays only, {rays_per_second / 1e6:.0f} M rays/s): equal error "
+          f"~{ideal_equal_error:,.0f} s ({ideal_equal_error / analytic_seconds:,.0f}x the analytic time), "
+          f"1% error ~{ideal_one_percent:.1f} s ({ideal_one_percent / analytic_seconds:.1f}x)")
+
     if args.json:
         Path(args.json).write_text(json.dumps({
             "resolution": args.resolution, "analytic_seconds": analytic_seconds,

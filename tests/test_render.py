@@ -325,3 +325,23 @@ def test_mesh_emitter_is_seen_by_the_camera_and_lights_like_a_light():
     assert seen.sum() == 16  # the 1 x 1 emitter covers 4 x 4 of the 4 x 4-unit view at 16 px
     np.testing.assert_allclose(out[seen], 3.0, rtol=1e-6)
     np.testing.assert_allclose(out[~seen], expected[~seen], rtol=1e-6)
+
+
+def test_command_line_renders_an_npz_scene_to_a_multichannel_exr(tmp_path):
+    from lazyvis_addon.core.exr import read_exr
+    from tests.conftest import ROOT
+    scene = demo_scenes.floating_boxes(resolution=24, n_boxes=4)
+    scene.save_npz(tmp_path / "scene.npz")
+    result = subprocess.run([sys.executable, "-m", "lazyvis_addon.core", str(tmp_path / "scene.npz"),
+                             "-o", str(tmp_path / "out.exr"), "--png", str(tmp_path / "out.png")],
+                            cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    channels = read_exr(tmp_path / "out.exr")
+    assert {"R", "G", "B", "A", "BlockerCount", "Depth", "Normal.X", "Normal.Y", "Normal.Z"} <= set(channels)
+    expected = render(scene)
+    np.testing.assert_array_equal(channels["G"], expected.combined[..., 1])
+    np.testing.assert_array_equal(channels["BlockerCount"], expected.blocker_count)
+    assert (tmp_path / "out.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    missing = subprocess.run([sys.executable, "-m", "lazyvis_addon.core", str(tmp_path / "nope.npz"), "-o",
+                              str(tmp_path / "x.exr")], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert missing.returncode == 1 and "error:" in missing.stderr and "Traceback" not in missing.stderr
