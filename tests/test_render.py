@@ -345,3 +345,23 @@ def test_command_line_renders_an_npz_scene_to_a_multichannel_exr(tmp_path):
     missing = subprocess.run([sys.executable, "-m", "lazyvis_addon.core", str(tmp_path / "nope.npz"), "-o",
                               str(tmp_path / "x.exr")], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert missing.returncode == 1 and "error:" in missing.stderr and "Traceback" not in missing.stderr
+
+
+def test_blockers_without_a_cone_remove_nothing():
+    """Pass 2 given blockers that pass 1 never stores (the receiver's own polygon, a coplanar neighbour,
+    a blocker below the horizon): the light must stay whole."""
+    scene = plane_under_light(resolution=1, blocker=np.array([[(3, 3, -1.0), (4, 3, -1.0), (3, 4, -1.0)]]))
+    scene.camera = Camera.perspective(demo_scenes.look_at((3.0, 0.0, 0.2), (0, 0, 0)), 1, 1, np.radians(0.5))
+    scene = scene.validated()
+    tracer = RayTracer(scene.triangles)
+    surface = _primary(scene, tracer, scene_extent(scene), Settings(), Progress())
+    frames = light_frames(scene.lights)
+    polygons = BlockerPolygons.from_triangles(scene.triangles)
+    everything = np.arange(len(polygons))  # the plane's own quad and the triangle under the plane
+    blockers = BlockerMap.from_entries(np.zeros(len(everything), int), np.zeros(len(everything), int), everything,
+                                       np.zeros((1, 1), bool))
+    with_junk = analytic(visible_pieces(surface, frames, polygons, blockers), surface, frames)
+    empty = BlockerMap.from_entries(np.zeros(0, int), np.zeros(0, int), np.zeros(0, int), np.zeros((1, 1), bool))
+    clean = analytic(visible_pieces(surface, frames, polygons, empty), surface, frames)
+    assert clean[0] > 0
+    assert with_junk[0] == pytest.approx(clean[0], rel=1e-12)

@@ -153,7 +153,9 @@ def _subtract_blocker(uv, count, couple, lines, valid, min_area):
     value = np.stack([_side(lines[:, i], uv) for i in range(n_edges)], axis=1)  # (M, E, K)
     outside_edge = valid & np.where(real_vertex[:, None, :], value <= 0.0, True).all(axis=2)
     inside_edge = ~valid | np.where(real_vertex[:, None, :], value >= 0.0, True).all(axis=2)
-    separated = outside_edge.any(axis=1)
+    # A blocker without a valid cone face subtends no solid angle (the receiver lies in its plane): it
+    # removes nothing, rather than everything.
+    separated = outside_edge.any(axis=1) | ~valid.any(axis=1)
     covered = ~separated & inside_edge.all(axis=1)
     split = np.flatnonzero(~separated & ~covered)
     drop = ~separated
