@@ -365,3 +365,21 @@ def test_blockers_without_a_cone_remove_nothing():
     clean = analytic(visible_pieces(surface, frames, polygons, empty), surface, frames)
     assert clean[0] > 0
     assert with_junk[0] == pytest.approx(clean[0], rel=1e-12)
+
+
+def test_extended_fill_adds_a_boundary_ring_and_changes_no_pixel(boxes_scene):
+    plain = render(boxes_scene, Settings(extend_fill=False))
+    extended = render(boxes_scene, Settings(extend_fill=True))
+    # Same image at pixel centres: the extra pairs do not overlap the light there.
+    np.testing.assert_allclose(extended.combined, plain.combined, atol=1e-7)
+    # Every pixel keeps its pairs and the ring around each filled region gains some.
+    assert (extended.blocker_count >= plain.blocker_count).all()
+    grown = (extended.blocker_count > plain.blocker_count)
+    assert grown.mean() > 0.02
+    # The new pairs sit next to pixels that already had pairs (a one-pixel ring, not a second fill).
+    had = plain.blocker_count > 0
+    near = np.zeros_like(had)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            near |= np.roll(np.roll(had, dy, axis=0), dx, axis=1)
+    assert near[grown].all()

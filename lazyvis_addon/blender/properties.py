@@ -42,6 +42,9 @@ class LazyVisSceneSettings(bpy.types.PropertyGroup):
     umbra_detection: BoolProperty(name="Umbra Detection", default=_DEFAULTS.umbra_detection,
                                   description="Mark a light hidden where one blocker covers it entirely "
                                               "(paper section 5)")
+    extend_fill: BoolProperty(name="Extended Fill", default=_DEFAULTS.extend_fill,
+                              description="Also keep a blocker in the pixels just outside its shadow, so every "
+                                          "point seen through a pixel has its blockers (paper section 4.4)")
     merge_quads: BoolProperty(name="Merge Quads", default=_DEFAULTS.merge_quads,
                               description="Treat coplanar triangle pairs that form convex quads as one blocker "
                                           "polygon (faster; the image is the same up to rounding)")

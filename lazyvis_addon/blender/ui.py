@@ -87,6 +87,7 @@ class LAZYVIS_RENDER_PT_blocker_map(LazyVisPanel, bpy.types.Panel):
         layout.prop(props, "connectivity")
         layout.prop(props, "umbra_detection")
         layout.prop(props, "merge_quads")
+        layout.prop(props, "extend_fill")
         layout.prop(props, "window_margin")
 
 

@@ -253,7 +253,10 @@ def flood_fill(surface: SurfacePoints, frames: LightFrames, blockers: BlockerPol
             pair = frontier_pair + chunk_start
             ok, hidden = test_pairs(surface, frames, blockers, frontier_pixel, pair_blocker[pair], pair_light[pair],
                                     thread_count(settings.threads))
-            stored.append(np.stack([frontier_pixel[ok], pair[ok]]))
+            # Extended fill: the boundary pixels, where the test first fails, keep the pair too (the
+            # penumbra may reach into them), but the fill does not go on from them.
+            keep = np.ones_like(ok) if settings.extend_fill else ok
+            stored.append(np.stack([frontier_pixel[keep], pair[keep]]))
             umbra[frontier_pixel[hidden], pair_light[pair[hidden]]] = True
             frontier_pixel, frontier_pair = _next_ring(frontier_pixel[ok], frontier_pair[ok], offsets, height, width,
                                                        surface.hit, visited)

@@ -28,6 +28,9 @@ class Settings:
         Samples per pixel and light for the two Monte Carlo integrators.
     connectivity : int
         Flood-fill neighbourhood, 8 (the paper's text) or 4 (its Fig. 3 pseudo-code).
+    extend_fill : bool
+        Also store a pair in the boundary pixels where its overlap test first fails (paper section 4.4),
+        so that a pixel's blocker list holds for every point seen through the pixel (anti-aliasing).
     umbra_detection : bool
         Mark a light hidden at a pixel when one projected blocker surrounds it (paper section 5).
     seed : int
@@ -57,6 +60,7 @@ class Settings:
     mc_samples: int = 16
     connectivity: int = 8
     umbra_detection: bool = True
+    extend_fill: bool = False
     seed: int = 0
     frame: int = 0
     transparent_background: bool = False
