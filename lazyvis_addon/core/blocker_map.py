@@ -169,8 +169,8 @@ def detect_seeds(surface: SurfacePoints, frames: LightFrames, blockers: BlockerP
         u = rng.uniforms(settings.seed, settings.frame, rng.STREAM_SHADOW_RAYS, pixel_global[pix_s],
                          lig_s * samples + sample, 2)
         u = rng.stratified_2d(u, sample, samples)
-        polygons = setup.directions(frames, setup.uv[rows], rows)
-        direction, pdf, _ = sample_polygon_solid_angle(polygons, setup.count[rows], u)
+        polygons = setup.directions(frames, setup.uv[lit], lit)
+        direction, pdf, _ = sample_polygon_solid_angle(polygons, setup.count[lit], u, repeat=samples)
         normal = surface.geometric_normal[pix_s]
         origin = surface.position[pix_s] + surface.offset[pix_s, None] * normal
         # Distance to the light's plane along the ray; stop a little short so the light's own

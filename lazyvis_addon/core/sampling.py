@@ -303,7 +303,8 @@ def polygon_solid_angle(vertices, vertex_count) -> np.ndarray:
     return _fan(vertices, vertex_count)[3].sum(axis=1)
 
 
-def sample_polygon_solid_angle(vertices, vertex_count, u) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def sample_polygon_solid_angle(vertices, vertex_count, u, repeat: int = 1
+                               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Sample directions uniformly in the solid angle of convex polygons.
 
     Parameters
@@ -313,8 +314,10 @@ def sample_polygon_solid_angle(vertices, vertex_count, u) -> tuple[np.ndarray, n
         by repeating the last vertex.
     vertex_count : (N,) int
         Real vertex count of each polygon.
-    u : (N, 2) float64
-        Canonical uniforms in [0, 1).
+    u : (N * repeat, 2) float64
+        Canonical uniforms in [0, 1); rows i * repeat .. (i + 1) * repeat - 1 sample polygon i.
+    repeat : int
+        Samples per polygon: the fan's solid angles are computed once and shared.
 
     Returns
     -------
@@ -334,6 +337,9 @@ def sample_polygon_solid_angle(vertices, vertex_count, u) -> tuple[np.ndarray, n
     """
     u = _as_rows("u", u, 2)
     apex, first, second, fan_solid_angle = _fan(vertices, vertex_count)
+    if repeat > 1:
+        apex, first, second, fan_solid_angle = (np.repeat(x, repeat, axis=0)
+                                                for x in (apex, first, second, fan_solid_angle))
     if len(u) != len(apex):
         raise ValueError(f"u must have one row per polygon ({len(apex)}), got {len(u)}")
     count, triangle_count = fan_solid_angle.shape
