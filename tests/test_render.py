@@ -383,3 +383,19 @@ def test_extended_fill_adds_a_boundary_ring_and_changes_no_pixel(boxes_scene):
         for dx in (-1, 0, 1):
             near |= np.roll(np.roll(had, dy, axis=0), dx, axis=1)
     assert near[grown].all()
+
+
+@pytest.mark.parametrize("scale", [1e-3, 1e3])
+def test_image_is_independent_of_scene_scale(scale):
+    """Direct lighting is invariant under a uniform scaling of the whole scene (radiance kept): offsets and
+    tolerances must be relative, or acne and light leaks appear at small or large scales."""
+    scene = demo_scenes.floating_boxes(resolution=48, n_boxes=9)
+    base = render(scene).combined
+    scaled = demo_scenes.floating_boxes(resolution=48, n_boxes=9)
+    scaled.triangles = scaled.triangles * scale
+    scaled.lights.vertices = scaled.lights.vertices * scale
+    scaled.camera.world_from_camera = scaled.camera.world_from_camera.copy()
+    scaled.camera.world_from_camera[:3, 3] *= scale
+    image = render(scaled).combined
+    assert relative_rmse(image[..., :3], base[..., :3]) < 1e-4
+    np.testing.assert_allclose(image, base, atol=2e-3 * base.max())
