@@ -102,6 +102,19 @@ def clip_convex(points: np.ndarray, count: np.ndarray, side: np.ndarray) -> tupl
     clipped : (N, K + 1, D) float64, padded by repeating the last vertex.
     clipped_count : (N,) int64, 0 where nothing (or less than a triangle) remains.
     """
+    return split_convex(points, count, side, want_outside=False)[:2]
+
+
+def split_convex(points: np.ndarray, count: np.ndarray, side: np.ndarray, want_outside: bool = True):
+    """Both parts of each convex polygon cut by the line ``side`` = 0: where side >= 0 and where side <= 0.
+
+    Same parameters as ``clip_convex``; the two parts share their successor arrays and crossing points.
+
+    Returns
+    -------
+    inside, inside_count, outside, outside_count : as ``clip_convex`` returns, for side >= 0 and side <= 0
+    (``outside`` is None when ``want_outside`` is False).
+    """
     n, k, dims = points.shape
     rows = np.arange(n)
     last = np.maximum(count - 1, 0)
@@ -112,10 +125,28 @@ def clip_convex(points: np.ndarray, count: np.ndarray, side: np.ndarray) -> tupl
     points_next = np.roll(points, -1, axis=1)
     points_next[rows, last] = points[:, 0]
     valid = np.arange(k)[None, :] < count[:, None]
-    inside = side >= 0.0
-    emit_vertex = inside & valid
-    emit_cross = (inside != (side_next >= 0.0)) & valid
-    # Output order per edge i: vertex i (if inside), then the crossing on edge i (if any).
+    keep_in, keep_in_next = side >= 0.0, side_next >= 0.0
+    cross_in = (keep_in != keep_in_next) & valid
+    if want_outside:
+        keep_out, keep_out_next = side <= 0.0, side_next <= 0.0
+        cross_out = (keep_out != keep_out_next) & valid
+        crossing_mask = cross_in | cross_out
+    else:
+        crossing_mask = cross_in
+    crossing = np.zeros_like(points)
+    row, col = np.nonzero(crossing_mask)
+    frac = (side[row, col] / (side[row, col] - side_next[row, col]))[:, None]
+    crossing[row, col] = points[row, col] + frac * (points_next[row, col] - points[row, col])
+    inside, inside_count = _assemble(points, crossing, keep_in & valid, cross_in)
+    if not want_outside:
+        return inside, inside_count, None, None
+    outside, outside_count = _assemble(points, crossing, keep_out & valid, cross_out)
+    return inside, inside_count, outside, outside_count
+
+
+def _assemble(points, crossing, emit_vertex, emit_cross):
+    """Compact the emitted vertices and crossings (per edge i: vertex i, then the crossing on edge i)."""
+    n, k, dims = points.shape
     emitted = emit_vertex.astype(np.int64) + emit_cross
     start = np.cumsum(emitted, axis=1) - emitted
     total = emitted.sum(axis=1)
@@ -123,14 +154,11 @@ def clip_convex(points: np.ndarray, count: np.ndarray, side: np.ndarray) -> tupl
     row, col = np.nonzero(emit_vertex)
     out[row, start[row, col]] = points[row, col]
     row, col = np.nonzero(emit_cross)
-    denom = side[row, col] - side_next[row, col]
-    frac = (side[row, col] / denom)[:, None]
-    out[row, start[row, col] + emit_vertex[row, col]] = points[row, col] + frac * (points_next[row, col] - points[row, col])
+    out[row, start[row, col] + emit_vertex[row, col]] = crossing[row, col]
     # Pad by repeating the last vertex: gather every slot from min(slot, total - 1).
     fill = np.minimum(np.arange(k + 1)[None, :], np.maximum(total - 1, 0)[:, None])
     out = np.take_along_axis(out, fill[:, :, None], axis=1)
-    total = np.where(total >= 3, total, 0)
-    return out, total
+    return out, np.where(total >= 3, total, 0)
 
 
 def polygon_area_2d(uv: np.ndarray) -> np.ndarray:

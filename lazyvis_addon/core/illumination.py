@@ -17,7 +17,7 @@ import numpy as np
 from . import rng
 from .blocker_map import BlockerMap
 from .blockers import BlockerPolygons
-from .geometry import (LightFrames, ReceiverLight, blocker_in_front_of_light, clip_convex, cone_planes,
+from .geometry import (LightFrames, ReceiverLight, blocker_in_front_of_light, cone_planes, split_convex,
                        plane_lines, polygon_area_2d, projected_solid_angle, receiver_light, trim)
 from .sampling import sample_polygon_solid_angle, sample_spherical_triangle, spherical_triangle_solid_angle
 from .settings import Settings
@@ -179,7 +179,8 @@ def _subtract_blocker(uv, count, couple, lines, valid, min_area):
             out_count.append(remainder_count[whole])
             out_couple.append(owner[whole])
         if len(cut):
-            outside, outside_count = clip_convex(remainder[cut], remainder_count[cut], -side[cut])
+            inside, inside_count, outside, outside_count = split_convex(remainder[cut], remainder_count[cut],
+                                                                        side[cut], want_outside=True)
             big = (outside_count >= 3) & (np.abs(polygon_area_2d(outside)) > min_area[owner[cut]])
             out_uv.append(outside[big])
             out_count.append(outside_count[big])
@@ -189,7 +190,6 @@ def _subtract_blocker(uv, count, couple, lines, valid, min_area):
         remainder_count = remainder_count.copy()
         remainder_count[whole] = 0
         if len(cut):
-            inside, inside_count = clip_convex(remainder[cut], remainder_count[cut], side[cut])
             remainder = _pad_to(remainder, inside.shape[1])
             remainder[cut] = inside
             remainder_count[cut] = inside_count
