@@ -31,6 +31,11 @@ class LazyVisSceneSettings(bpy.types.PropertyGroup):
     shadow_rays: IntProperty(name="Shadow Rays", default=_DEFAULTS.shadow_rays, min=1, soft_max=64,
                              description="Shadow rays per pixel and light that look for blockers (pass 1), "
                                          "stratified over the light")
+    verify_rays: IntProperty(name="Verification Rays", default=_DEFAULTS.verify_rays, min=0, soft_max=64,
+                             description="Rays per pixel and light into what pass 1 left visible; each hit is a "
+                                         "missed blocker, added and re-shaded (0: off)")
+    refine_rounds: IntProperty(name="Refinement Rounds", default=_DEFAULTS.refine_rounds, min=0, soft_max=8,
+                               description="How many times verification may add blockers and re-shade")
     mc_samples: IntProperty(name="Samples", default=_DEFAULTS.mc_samples, min=1, soft_max=1024,
                             description="Samples per pixel and light for the Monte Carlo integrators")
     connectivity: EnumProperty(name="Connectivity", default=str(_DEFAULTS.connectivity),

@@ -88,6 +88,10 @@ class LAZYVIS_RENDER_PT_blocker_map(LazyVisPanel, bpy.types.Panel):
         layout.prop(props, "umbra_detection")
         layout.prop(props, "merge_quads")
         layout.prop(props, "extend_fill")
+        layout.prop(props, "verify_rays")
+        sub = layout.column()
+        sub.active = props.verify_rays > 0
+        sub.prop(props, "refine_rounds")
         layout.prop(props, "window_margin")
 
 

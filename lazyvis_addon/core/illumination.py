@@ -242,14 +242,27 @@ def analytic(pieces: VisiblePieces, surface: SurfacePoints, frames: LightFrames)
     return np.bincount(pieces.couple, weights=per_piece, minlength=len(pieces.couple_pixel))
 
 
-def reduced_domain_mc(pieces: VisiblePieces, surface: SurfacePoints, frames: LightFrames, settings: Settings,
-                      pixel_global: np.ndarray) -> np.ndarray:
-    """Monte Carlo over the visible pieces (paper 3.3): directions uniform in their solid angle."""
+def sample_visible(pieces: VisiblePieces, frames: LightFrames, samples: int, couples_wanted: np.ndarray,
+                   settings: Settings, pixel_global: np.ndarray, stream: int
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Directions uniform in the solid angle of each couple's visible pieces.
+
+    Parameters
+    ----------
+    samples : int                     directions per couple (stratified).
+    couples_wanted : (Nc,) bool       couples to sample.
+    pixel_global : (N,) int64         full-frame pixel index of the batch's pixels (random numbers).
+    stream : int                      random-number stream.
+
+    Returns
+    -------
+    couple : (S,) int64, direction : (S, 3) unit world vectors, pdf : (S,) per sr, total : (Nc,) sr.
+    """
     couples = pieces.couples
     n_couples = len(pieces.couple_pixel)
-    result = np.zeros(n_couples)
+    empty = (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros(n_couples))
     if len(pieces.count) == 0:
-        return result
+        return empty
     # Fan triangles of every piece; padded fans have zero solid angle and are never chosen.
     directions = couples.directions(frames, pieces.uv, pieces.couple)
     fans = directions.shape[1] - 2
@@ -265,29 +278,74 @@ def reduced_domain_mc(pieces: VisiblePieces, surface: SurfacePoints, frames: Lig
     last = np.searchsorted(tri_couple, np.arange(n_couples), side="right") - 1
     before = np.where(first > 0, cumulative[np.maximum(first - 1, 0)], 0.0)
     total = np.bincount(tri_couple, weights=omega, minlength=n_couples)
-    has = (total > 0) & (last >= first)
+    has = (total > 0) & (last >= first) & couples_wanted
+    if not has.any():
+        return empty[:3] + (total,)
 
-    samples = settings.mc_samples
     couple = np.repeat(np.flatnonzero(has), samples)
     sample = np.tile(np.arange(samples), int(has.sum()))
     pixel = pieces.couple_pixel[couple]
     light = couples.light[couple]
-    u = rng.uniforms(settings.seed, settings.frame, rng.STREAM_REDUCED_MC, pixel_global[pixel],
-                     light * samples + sample, 2)
+    u = rng.uniforms(settings.seed, settings.frame, stream, pixel_global[pixel], light * samples + sample, 2)
     u = rng.stratified_2d(u, sample, samples)
     target = before[couple] + u[:, 0] * total[couple]
     index = np.clip(np.searchsorted(cumulative, target, side="right"), first[couple], last[couple])
-    # Skip zero-solid-angle fans that searchsorted may land on at a boundary.
     below = np.where(index > 0, cumulative[np.maximum(index - 1, 0)], 0.0)
     below = np.where(index == first[couple], before[couple], below)
     remapped = np.clip((target - below) / np.maximum(omega[index], 1e-300), 0.0, 1.0 - 1e-12)
     direction, pdf = sample_spherical_triangle(a[index], b[index], c[index], np.stack([remapped, u[:, 1]], axis=1))
-    pdf_total = pdf * omega[index] / total[couple]
-    normal = surface.shading_normal[pixel]
+    return couple, direction, pdf * omega[index] / total[couple], total
+
+
+def reduced_domain_mc(pieces: VisiblePieces, surface: SurfacePoints, frames: LightFrames, settings: Settings,
+                      pixel_global: np.ndarray) -> np.ndarray:
+    """Monte Carlo over the visible pieces (paper 3.3): directions uniform in their solid angle."""
+    n_couples = len(pieces.couple_pixel)
+    samples = settings.mc_samples
+    couple, direction, pdf, _ = sample_visible(pieces, frames, samples, np.ones(n_couples, bool), settings,
+                                               pixel_global, rng.STREAM_REDUCED_MC)
+    normal = surface.shading_normal[pieces.couple_pixel[couple]]
     cosine = np.maximum(np.einsum("nk,nk->n", direction, normal), 0.0)
-    estimate = np.where(pdf_total > 0, cosine / np.maximum(pdf_total, 1e-300), 0.0)
-    result += np.bincount(couple, weights=estimate, minlength=n_couples) / samples
-    return result
+    estimate = np.where(pdf > 0, cosine / np.maximum(pdf, 1e-300), 0.0)
+    return np.bincount(couple, weights=estimate, minlength=n_couples) / samples
+
+
+def verify_visible(pieces: VisiblePieces, surface: SurfacePoints, frames: LightFrames, polygons: BlockerPolygons,
+                   tracer, couples_wanted: np.ndarray, settings: Settings, pixel_global: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Shadow rays into what the blocker map claims is visible: any hit is a blocker the map missed.
+
+    Parameters
+    ----------
+    couples_wanted : (Nc,) bool  couples to verify.
+
+    Returns
+    -------
+    pixel, blocker, light : (H,) int64   missed pairs found (batch-local pixel), unique.
+    rays : int
+    """
+    couple, direction, pdf, _ = sample_visible(pieces, frames, settings.verify_rays, couples_wanted, settings,
+                                               pixel_global, rng.STREAM_VERIFY)
+    empty = np.zeros(0, np.int64)
+    if len(couple) == 0:
+        return empty, empty, empty, 0
+    couples = pieces.couples
+    pixel = pieces.couple_pixel[couple]
+    light = couples.light[couple]
+    normal = surface.geometric_normal[pixel]
+    origin = surface.position[pixel] + surface.offset[pixel, None] * normal
+    toward = -couples.side[couple] * np.einsum("nk,nk->n", direction, frames.normal[light])
+    height = couples.side[couple] * np.einsum("nk,nk->n", origin - frames.origin[light], frames.normal[light])
+    good = (pdf > 0) & (toward > 0) & (height > 0)
+    tfar = np.where(good, height / np.where(good, toward, 1.0), 0.0) * (1.0 - 1e-6)
+    hits = tracer.intersect(origin[good], direction[good], tfar[good])
+    found = np.where(hits.index_triangle >= 0, polygons.of_triangle[np.maximum(hits.index_triangle, 0)], -1)
+    own = polygons.of_triangle[surface.index_triangle[pixel[good]]]
+    blocked = (found >= 0) & (found != own)
+    pixel, blocker, light = pixel[good][blocked], found[blocked], light[good][blocked]
+    n_blockers = max(len(polygons), 1)
+    key = np.unique((pixel * len(frames) + light) * n_blockers + blocker)
+    return key // n_blockers // len(frames), key % n_blockers, key // n_blockers % len(frames), int(good.sum())
 
 
 def standard_mc(surface: SurfacePoints, frames: LightFrames, tracer, settings: Settings, pixel_global: np.ndarray

@@ -13,11 +13,12 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 
 from .blockers import BlockerPolygons
-from .blocker_map import BlockerMap, build_blocker_map, reference_blocker_map
+from .blocker_map import BlockerMap, build_blocker_map, flood_fill, reference_blocker_map
 from .camera import camera_rays, planar_depth, window_pixels
 from .geometry import light_frames
 from .parallel import map_batches, thread_count
-from .illumination import analytic, outgoing_radiance, reduced_domain_mc, standard_mc, visible_pieces
+from .illumination import (analytic, outgoing_radiance, reduced_domain_mc, standard_mc, verify_visible,
+                           visible_pieces)
 from .progress import Progress
 from .scene import Scene
 from .settings import Settings
@@ -81,29 +82,61 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
     pixel_global = _global_pixels(camera)
     polygons = BlockerPolygons.from_triangles(scene.triangles, merge=settings.merge_quads)
     stats["blocker_polygons"] = len(polygons)
+    lazy = settings.integrator in ("analytic", "reduced_mc")
     blockers = None
-    if settings.integrator in ("analytic", "reduced_mc"):
+    if lazy:
         # Pass 1 runs over the window grown by a margin; pass 2 shades only the window.
         outer = _grown_window(camera, settings.window_margin)
         outer_surface = _primary(scene, tracer, extent, settings, progress, outer)
         outer_shape = (outer[3] - outer[1], outer[2] - outer[0])
+        n_outer = outer_shape[0] * outer_shape[1]
         outer_global = _global_pixels(camera, outer)
-        blockers = build_blocker_map(outer_surface, frames, polygons, tracer, outer_shape, outer_global,
-                                     settings, progress)
+        outer_map = build_blocker_map(outer_surface, frames, polygons, tracer, outer_shape, outer_global,
+                                      settings, progress)
         inner = _inner_indices(camera.window, outer)
         surface = outer_surface.take(inner)
-        blockers = blockers.crop(inner, outer_shape[0] * outer_shape[1])
+        blockers = outer_map.crop(inner, n_outer)
+        stats.update(outer_map.stats)
     else:
         surface = _primary(scene, tracer, extent, settings, progress)
         if settings.integrator == "reference":
             blockers = reference_blocker_map(surface, frames, polygons, (height, width), settings, progress)
-    if blockers is not None:
-        stats.update(blockers.stats)
-        stats["pairs_stored"] = len(blockers.pixel)
+            stats.update(blockers.stats)
 
-    radiance, pass2_stats = _illuminate(surface, frames, polygons, tracer, blockers, settings, pixel_global,
-                                        progress)
+    verify = lazy and settings.verify_rays > 0 and len(frames) > 0
+    radiance, pass2_stats, missed = _illuminate(surface, frames, polygons, tracer, blockers, settings, pixel_global,
+                                                progress, verify)
     stats.update(pass2_stats)
+    stats["missed_pairs_found"] = []
+    for _ in range(settings.refine_rounds if verify else 0):  # refinement rounds: a few
+        stats["missed_pairs_found"].append(len(missed[0]))
+        if len(missed[0]) == 0:
+            break
+        # Missed pairs are new seeds: flood-fill them over the outer grid, merge, re-shade what changed.
+        pixel, blocker, light, umbra, fill_stats = flood_fill(outer_surface, frames, polygons, outer_shape,
+                                                              inner[missed[0]], missed[1], missed[2], settings,
+                                                              progress)
+        if not settings.umbra_detection:
+            umbra[:] = False
+        merged = BlockerMap.from_entries(np.concatenate([outer_map.pixel, pixel]),
+                                         np.concatenate([outer_map.light, light]),
+                                         np.concatenate([outer_map.blocker, blocker]), outer_map.umbra | umbra)
+        window_map = merged.crop(inner, n_outer)
+        n_window = len(inner)
+        changed = np.flatnonzero((window_map.count_per_pixel(n_window) != blockers.count_per_pixel(n_window))
+                                 | (window_map.umbra != blockers.umbra).any(axis=1))
+        outer_map, blockers = merged, window_map
+        if len(changed) == 0:
+            break
+        part, part_stats, missed = _illuminate(surface.take(changed), frames, polygons, tracer,
+                                               window_map.crop(changed, n_window), settings, pixel_global[changed],
+                                               progress, verify)
+        radiance[changed] = part
+        missed = (changed[missed[0]], missed[1], missed[2])
+        stats["verify_rays"] += part_stats["verify_rays"]
+        stats["reshaded_pixels"] = stats.get("reshaded_pixels", 0) + len(changed)
+    if blockers is not None:
+        stats["pairs_stored"] = len(blockers.pixel)
 
     progress.begin_stage("Composing passes")
     output = _compose(scene, surface, radiance, blockers, settings, (height, width))
@@ -153,13 +186,21 @@ def _primary(scene: Scene, tracer, extent: float, settings: Settings, progress: 
 
 
 def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: BlockerMap | None, settings: Settings,
-                pixel_global: np.ndarray, progress: Progress) -> tuple[np.ndarray, dict]:
-    """Pass 2 over pixel batches: outgoing radiance (N, 3)."""
+                pixel_global: np.ndarray, progress: Progress, verify: bool = False
+                ) -> tuple[np.ndarray, dict, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Pass 2 over pixel batches.
+
+    Returns
+    -------
+    radiance : (N, 3) outgoing radiance; stats : dict;
+    missed : (pixel, blocker, light) pairs that verification rays found missing (pixel indexes ``surface``).
+    """
     n_pixels = len(surface)
     radiance = np.zeros((n_pixels, 3))
-    stats = {"pieces": 0, "max_blockers_per_couple": 0}
+    stats = {"pieces": 0, "max_blockers_per_couple": 0, "verify_rays": 0}
+    empty = np.zeros(0, np.int64)
     if len(frames) == 0:
-        return radiance, stats
+        return radiance, stats, (empty, empty, empty)
     batch = settings.pixel_batch
     # Entries are sorted by pixel, so each batch's entries form one contiguous run.
     entry_bounds = None
@@ -185,19 +226,30 @@ def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: Bloc
                 projected = reduced_domain_mc(pieces, part, frames, settings, globals_)
             else:
                 projected = analytic(pieces, part, frames)
+        missed = (empty, empty, empty, 0)
+        if verify and pieces is not None:
+            # Every lit couple: a couple with no blocker found may be one whose blockers all escaped pass 1.
+            found = verify_visible(pieces, part, frames, polygons, tracer, np.ones(len(couple_pixel), bool),
+                                   settings, globals_)
+            missed = (found[0] + start,) + found[1:]
         result = outgoing_radiance(part, frames, couples, couple_pixel, projected)
         return start, stop, result, (0 if pieces is None else len(pieces.count)), \
-            (0 if pieces is None else pieces.max_rounds)
+            (0 if pieces is None else pieces.max_rounds), missed
 
     progress.begin_stage("Illumination", n_pixels)
     units = [min(start + batch, n_pixels) - start for start in starts]
-    for start, stop, result, n_pieces, rounds in map_batches(shade, range(len(starts)),
-                                                             thread_count(settings.threads), progress, units):
+    found = []
+    for start, stop, result, n_pieces, rounds, missed in map_batches(shade, range(len(starts)),
+                                                                     thread_count(settings.threads), progress,
+                                                                     units):
         radiance[start:stop] = result
         stats["pieces"] += n_pieces
         stats["max_blockers_per_couple"] = max(stats["max_blockers_per_couple"], rounds)
+        stats["verify_rays"] += missed[3]
+        found.append(missed[:3])
     progress.end_stage()
-    return radiance, stats
+    missed = tuple(np.concatenate([f[i] for f in found]) if found else empty for i in range(3))
+    return radiance, stats, missed
 
 
 def _compose(scene: Scene, surface: SurfacePoints, radiance: np.ndarray, blockers: BlockerMap | None,

@@ -24,6 +24,14 @@ class Settings:
         (every triangle is a candidate blocker: exact and slow, the oracle for tests).
     shadow_rays : int
         Shadow rays per pixel and light in pass 1 (blocker detection), stratified over the light's solid angle.
+    verify_rays : int
+        Verification rays per pixel and light, sampled over what the blocker map leaves visible: a hit
+        is a blocker the map missed, which is then flood-filled and the pixels it reaches re-shaded
+        (beyond the paper). The error from missed blockers falls towards zero as they grow; 0 (the default)
+        turns verification off. Only the window's pixels are verified, so a window equals the full frame
+        exactly only without verification.
+    refine_rounds : int
+        How many times verification may add blockers and re-shade.
     mc_samples : int
         Samples per pixel and light for the two Monte Carlo integrators.
     connectivity : int
@@ -58,6 +66,8 @@ class Settings:
     integrator: str = "analytic"
     shadow_rays: int = 4
     mc_samples: int = 16
+    verify_rays: int = 0
+    refine_rounds: int = 2
     connectivity: int = 8
     umbra_detection: bool = True
     extend_fill: bool = False
@@ -75,6 +85,10 @@ class Settings:
             raise ValueError(f"integrator must be one of {', '.join(INTEGRATORS)}, not {self.integrator!r}")
         if self.connectivity not in (4, 8):
             raise ValueError(f"connectivity must be 4 or 8, not {self.connectivity!r}")
+        for name in ("verify_rays", "refine_rounds"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or value < 0:
+                raise ValueError(f"{name} must be a non-negative integer, not {value!r}")
         for name in ("shadow_rays", "mc_samples", "pixel_batch"):
             value = getattr(self, name)
             if not isinstance(value, int) or value < 1:
