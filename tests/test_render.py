@@ -20,6 +20,9 @@ from lazyvis_addon.core.surface import scene_extent
 from lazyvis_addon.core.trace import RayTracer
 from tests.test_geometry import quadrature_projected_solid_angle
 
+# Pixel-centre shading: what passes 1 and 2 compute (anti-aliasing off).
+CENTRES = Settings(aa_samples=1)
+
 
 def pixel_points(scene):
     """World positions on the z = 0 plane of the orthographic top-view pixels of plane_under_light."""
@@ -33,7 +36,7 @@ def pixel_points(scene):
 
 def test_unoccluded_plane_matches_quadrature():
     scene = plane_under_light(resolution=24, light_size=1.0, height=1.0, radiance=3.0)
-    out = render(scene, Settings())
+    out = render(scene, CENTRES)
     px, py = pixel_points(scene)
     light = scene.lights.vertices[0]
     for (i, j) in [(0, 0), (12, 12), (5, 17), (23, 3)]:
@@ -109,7 +112,7 @@ def boxes_scene():
 
 @pytest.fixture(scope="module")
 def boxes_reference(boxes_scene):
-    return render(boxes_scene, Settings(integrator="reference"))
+    return render(boxes_scene, CENTRES.replace(integrator="reference"))
 
 
 # Lazy detection at 80 x 80 (penumbrae a few pixels wide, so few shadow rays per blocker) against the
@@ -123,7 +126,7 @@ def relative_rmse(image, reference):
 
 
 def test_lazy_blocker_map_matches_reference(boxes_scene, boxes_reference):
-    lazy = render(boxes_scene, Settings(integrator="analytic", shadow_rays=4))
+    lazy = render(boxes_scene, CENTRES.replace(integrator="analytic", shadow_rays=4))
     ref = boxes_reference.combined[..., :3]
     img = lazy.combined[..., :3]
     differs = np.abs(img - ref).max(axis=2) > 1e-6 * ref.max()
@@ -161,10 +164,10 @@ def test_seeds_alone_are_not_enough(boxes_scene, boxes_reference):
 def test_monte_carlo_integrators_are_unbiased(boxes_scene, boxes_reference):
     """Reduced-domain MC against analytic over the same blocker map; standard MC (Embree shadow rays, no
     clipping) against the reference (clipping, no shadow rays): two independent routes to one answer."""
-    exact = render(boxes_scene, Settings(integrator="analytic")).combined[..., :3]
+    exact = render(boxes_scene, CENTRES.replace(integrator="analytic")).combined[..., :3]
     reference = boxes_reference.combined[..., :3]
-    mc = render(boxes_scene, Settings(integrator="reduced_mc", mc_samples=16)).combined[..., :3]
-    standard = render(boxes_scene, Settings(integrator="standard_mc", mc_samples=16)).combined[..., :3]
+    mc = render(boxes_scene, CENTRES.replace(integrator="reduced_mc", mc_samples=16)).combined[..., :3]
+    standard = render(boxes_scene, CENTRES.replace(integrator="standard_mc", mc_samples=16)).combined[..., :3]
     lit = exact.sum(axis=2) > 0
     for image, truth in ((mc, exact), (standard, reference)):
         diff = (image - truth)[lit]
@@ -185,13 +188,14 @@ def test_window_renders_the_same_pixels_as_the_full_frame(boxes_scene):
     tile = window_of(boxes_scene, (20, 30, 60, 55))
     for integrator in ("analytic", "reduced_mc", "standard_mc"):
         # A margin as large as the frame makes pass 1 see everything the full frame sees: exact.
-        settings = Settings(integrator=integrator, mc_samples=4, window_margin=80)
+        settings = CENTRES.replace(integrator=integrator, mc_samples=4, window_margin=80)
         full = render(boxes_scene, settings)
         part = render(tile, settings)
         np.testing.assert_array_equal(part.combined, full.combined[30:55, 20:60])
         np.testing.assert_array_equal(part.depth, full.depth[30:55, 20:60])
         np.testing.assert_array_equal(part.blocker_count, full.blocker_count[30:55, 20:60])
-    # With the default margin only blockers found far outside the window can be missed.
+    # With the default margin (and anti-aliasing, marked from the window's own pixels) only blockers
+    # found far outside the window and the border ring's anti-aliasing can differ.
     full = render(boxes_scene, Settings()).combined[30:55, 20:60, :3]
     part = render(tile, Settings()).combined[..., :3]
     assert relative_rmse(part, full) < 0.01
@@ -206,7 +210,7 @@ def test_same_seed_same_image_other_seed_other_noise(boxes_scene):
 
 
 def test_four_connectivity_also_matches(boxes_scene, boxes_reference):
-    lazy = render(boxes_scene, Settings(connectivity=4))
+    lazy = render(boxes_scene, CENTRES.replace(connectivity=4))
     assert relative_rmse(lazy.combined[..., :3], boxes_reference.combined[..., :3]) < 0.01
 
 
@@ -319,9 +323,9 @@ def test_mesh_emitter_is_seen_by_the_camera_and_lights_like_a_light():
     scene.material_index[2:] = 1
     scene.materials = Materials(np.array([[0.5] * 3, [0.0] * 3]), emission=np.array([[0.0] * 3, [3.0] * 3]))
     scene.lights = Lights.from_polygons([base.lights.vertices[0]], [(3.0,) * 3], two_sided=[True])
-    out = render(scene).combined[..., 0]
-    expected = render(base).combined[..., 0]
-    seen = render(scene).depth < 4.5  # the camera at z = 5 sees the emitter at z = 1
+    out = render(scene, CENTRES).combined[..., 0]
+    expected = render(base, CENTRES).combined[..., 0]
+    seen = render(scene, CENTRES).depth < 4.5  # the camera at z = 5 sees the emitter at z = 1
     assert seen.sum() == 16  # the 1 x 1 emitter covers 4 x 4 of the 4 x 4-unit view at 16 px
     np.testing.assert_allclose(out[seen], 3.0, rtol=1e-6)
     np.testing.assert_allclose(out[~seen], expected[~seen], rtol=1e-6)
@@ -368,8 +372,8 @@ def test_blockers_without_a_cone_remove_nothing():
 
 
 def test_extended_fill_adds_a_boundary_ring_and_changes_no_pixel(boxes_scene):
-    plain = render(boxes_scene, Settings(extend_fill=False))
-    extended = render(boxes_scene, Settings(extend_fill=True))
+    plain = render(boxes_scene, CENTRES.replace(extend_fill=False))
+    extended = render(boxes_scene, CENTRES.replace(extend_fill=True))
     # Same image at pixel centres: the extra pairs do not overlap the light there.
     np.testing.assert_allclose(extended.combined, plain.combined, atol=1e-7)
     # Every pixel keeps its pairs and the ring around each filled region gains some.
@@ -405,7 +409,7 @@ def test_verification_rays_find_what_detection_missed(boxes_scene, boxes_referen
     """Rays into what the map leaves visible find missed blockers: the error falls towards zero as they grow,
     and a pair found this way really is missing from the map without verification."""
     ref = boxes_reference.combined[..., :3]
-    sparse = Settings(shadow_rays=1)
+    sparse = CENTRES.replace(shadow_rays=1)
     plain = render(boxes_scene, sparse)
     verified = render(boxes_scene, sparse.replace(verify_rays=32, refine_rounds=3))
     error_plain = relative_rmse(plain.combined[..., :3], ref)

@@ -31,6 +31,13 @@ class LazyVisSceneSettings(bpy.types.PropertyGroup):
     shadow_rays: IntProperty(name="Shadow Rays", default=_DEFAULTS.shadow_rays, min=1, soft_max=64,
                              description="Shadow rays per pixel and light that look for blockers (pass 1), "
                                          "stratified over the light")
+    aa_samples: IntProperty(name="Edge Samples", default=_DEFAULTS.aa_samples, min=1, soft_max=256,
+                            description="Anti-aliasing: samples for pixels at edges (another object, material "
+                                        "or a sharp shadow nearby), placed by the pixel filter; 1 shades "
+                                        "pixel centres only")
+    aa_threshold: FloatProperty(name="Edge Threshold", default=_DEFAULTS.aa_threshold, min=0.0, soft_max=1.0,
+                                description="Relative brightness step between neighbouring pixels that "
+                                            "marks an edge for anti-aliasing")
     verify_rays: IntProperty(name="Verification Rays", default=_DEFAULTS.verify_rays, min=0, soft_max=64,
                              description="Rays per pixel and light into what pass 1 left visible; each hit is a "
                                          "missed blocker, added and re-shaded (0: off)")
@@ -80,12 +87,15 @@ class LazyVisViewLayerSettings(bpy.types.PropertyGroup):
 
 def settings_from_scene(scene) -> Settings:
     """The core ``Settings`` for a Blender scene: every ``scene.lazyvis`` property named like a Settings
-    field, plus frame, film transparency and threads from Blender's own render settings."""
+    field, plus frame, film transparency, filter size and threads from Blender's own render settings."""
     props = scene.lazyvis
     values = {name: getattr(props, name) for name in Settings.field_names()
               if name in LazyVisSceneSettings.__annotations__}
     values["connectivity"] = int(values["connectivity"])  # an enum of "4" / "8"
+    # Blender keeps float properties in float32: 0.1 comes back as 0.10000000149. Six digits are the UI's.
+    values = {name: float(f"{value:.6g}") if isinstance(value, float) else value for name, value in values.items()}
     values.update(frame=scene.frame_current, transparent_background=scene.render.film_transparent,
+                  filter_width=float(scene.render.filter_size),
                   threads=0 if scene.render.threads_mode == 'AUTO' else scene.render.threads)
     return Settings(**values)
 

@@ -67,6 +67,11 @@ class LAZYVIS_RENDER_PT_integrator(LazyVisPanel, bpy.types.Panel):
         col = layout.column(align=True)
         col.active = props.integrator in ("reduced_mc", "standard_mc")
         col.prop(props, "mc_samples")
+        col = layout.column(align=True)
+        col.prop(props, "aa_samples")
+        sub = col.column(align=True)
+        sub.active = props.aa_samples > 1
+        sub.prop(props, "aa_threshold")
         layout.prop(props, "seed")
 
 
@@ -116,6 +121,7 @@ class LAZYVIS_RENDER_PT_film(LazyVisPanel, bpy.types.Panel):
         layout = self.layout
         layout.use_property_split = True
         layout.use_property_decorate = False
+        layout.prop(context.scene.render, "filter_size")
         layout.prop(context.scene.render, "film_transparent", text="Transparent")
 
 

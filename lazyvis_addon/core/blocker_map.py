@@ -255,7 +255,7 @@ def flood_fill(surface: SurfacePoints, frames: LightFrames, blockers: BlockerPol
                                     thread_count(settings.threads))
             # Extended fill: the boundary pixels, where the test first fails, keep the pair too (the
             # penumbra may reach into them), but the fill does not go on from them.
-            keep = np.ones_like(ok) if settings.extend_fill else ok
+            keep = np.ones_like(ok) if settings.fills_boundary else ok
             stored.append(np.stack([frontier_pixel[keep], pair[keep]]))
             umbra[frontier_pixel[hidden], pair_light[pair[hidden]]] = True
             frontier_pixel, frontier_pair = _next_ring(frontier_pixel[ok], frontier_pair[ok], offsets, height, width,

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
+from .antialias import inherit_blockers, refine_pixels, resolve, subpixel_samples
 from .blockers import BlockerPolygons
 from .blocker_map import BlockerMap, build_blocker_map, flood_fill, reference_blocker_map
 from .camera import camera_rays, planar_depth, window_pixels
@@ -138,8 +139,23 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
     if blockers is not None:
         stats["pairs_stored"] = len(blockers.pixel)
 
+    resolved = None
+    if settings.aa_samples > 1 and surface.hit.any():
+        progress.begin_stage("Anti-aliasing")
+        pixels = refine_pixels(scene, surface, radiance, (height, width), settings)
+        stats["aa_pixels"] = len(pixels)
+        if len(pixels):
+            sub, landing, sub_global = subpixel_samples(scene, tracer, extent, pixels, settings, pixel_global)
+            sub_map = None
+            if lazy:
+                sub_map = inherit_blockers(outer_map, outer, landing, len(frames))
+            elif settings.integrator == "reference":
+                sub_map = reference_blocker_map(sub, frames, polygons, (len(sub), 1), settings, progress)
+            sub_radiance, _, _ = _illuminate(sub, frames, polygons, tracer, sub_map, settings, sub_global, progress)
+            resolved = (pixels, resolve(sub_radiance, sub, scene, settings, settings.aa_samples))
+
     progress.begin_stage("Composing passes")
-    output = _compose(scene, surface, radiance, blockers, settings, (height, width))
+    output = _compose(scene, surface, radiance, blockers, settings, (height, width), resolved)
     progress.end_stage()
     stats["rays_cast"] = tracer.n_rays_cast
     stats["seconds"] = time.perf_counter() - started
@@ -253,7 +269,8 @@ def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: Bloc
 
 
 def _compose(scene: Scene, surface: SurfacePoints, radiance: np.ndarray, blockers: BlockerMap | None,
-             settings: Settings, shape: tuple[int, int]) -> RenderOutput:
+             settings: Settings, shape: tuple[int, int], resolved=None) -> RenderOutput:
+    """The passes of the window; ``resolved`` = (pixels, (P, 4) RGBA) replaces anti-aliased pixels."""
     height, width = shape
     n_pixels = height * width
     hit = surface.hit
@@ -263,6 +280,8 @@ def _compose(scene: Scene, surface: SurfacePoints, radiance: np.ndarray, blocker
     if not settings.transparent_background:
         combined[~hit, :3] = scene.background
         combined[~hit, 3] = 1.0
+    if resolved is not None:
+        combined[resolved[0]] = resolved[1]
     depth = np.full(n_pixels, BACKGROUND_DEPTH, np.float32)
     depth[hit] = planar_depth(scene.camera, surface.position[hit])
     normal = np.zeros((n_pixels, 3), np.float32)

@@ -36,6 +36,13 @@ class Settings:
         Samples per pixel and light for the two Monte Carlo integrators.
     connectivity : int
         Flood-fill neighbourhood, 8 (the paper's text) or 4 (its Fig. 3 pseudo-code).
+    aa_samples : int
+        Anti-aliasing: samples for pixels at edges (another polygon, material or a radiance step in
+        their neighbourhood), placed by the pixel filter; 1 shades pixel centres only.
+    filter_width : float
+        Pixel filter radius in pixels (Blackman-Harris, as Blender's Film > Filter Size; 1.5 default).
+    aa_threshold : float
+        Relative radiance difference between neighbours that marks a pixel for anti-aliasing.
     extend_fill : bool
         Also store a pair in the boundary pixels where its overlap test first fails (paper section 4.4),
         so that a pixel's blocker list holds for every point seen through the pixel (anti-aliasing).
@@ -71,6 +78,9 @@ class Settings:
     connectivity: int = 8
     umbra_detection: bool = True
     extend_fill: bool = False
+    aa_samples: int = 16
+    filter_width: float = 1.5
+    aa_threshold: float = 0.1
     seed: int = 0
     frame: int = 0
     transparent_background: bool = False
@@ -89,7 +99,9 @@ class Settings:
             value = getattr(self, name)
             if not isinstance(value, int) or value < 0:
                 raise ValueError(f"{name} must be a non-negative integer, not {value!r}")
-        for name in ("shadow_rays", "mc_samples", "pixel_batch"):
+        if not (self.filter_width > 0 and self.aa_threshold >= 0):
+            raise ValueError("filter_width must be positive and aa_threshold non-negative")
+        for name in ("shadow_rays", "mc_samples", "pixel_batch", "aa_samples"):
             value = getattr(self, name)
             if not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be a positive integer, not {value!r}")
@@ -99,6 +111,11 @@ class Settings:
             raise ValueError(f"window_margin must be a non-negative integer, not {self.window_margin!r}")
         if not self.memory_budget_mb > 0:
             raise ValueError(f"memory_budget_mb must be positive, not {self.memory_budget_mb!r}")
+
+    @property
+    def fills_boundary(self) -> bool:
+        """Pass 1 stores pairs in the boundary ring too: asked for, or needed by anti-aliasing."""
+        return self.extend_fill or self.aa_samples > 1
 
     def replace(self, **changes) -> "Settings":
         """A copy with some fields changed (validated again)."""

@@ -1,0 +1,116 @@
+"""Anti-aliasing the paper's way (section 4.4), reconstructed with Blender's pixel filter.
+
+Pass 1 runs with the extended flood fill, so a pixel's blocker list holds for every point seen through
+it. Pixels whose neighbours see another polygon, another material or a clearly different radiance get
+``aa_samples`` sub-pixel samples placed like Cycles' importance-sampled pixel filter (Blackman-Harris,
+``filter_width`` a radius in pixels); each sample is shaded with the blocker list of the pixel it lands
+in, and the pixel's value is the plain mean of its samples, as in Cycles. Other pixels keep their centre
+sample: where nothing changes across a pixel the filtered value is the centre value.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import rng
+from .adaptive import refine_mask
+from .blocker_map import BlockerMap
+from .camera import camera_rays, window_pixels
+from .film import filter_offsets
+from .scene import Scene
+from .settings import Settings
+from .surface import shade_hits
+
+
+def refine_pixels(scene: Scene, surface, radiance: np.ndarray, shape: tuple[int, int], settings: Settings
+                  ) -> np.ndarray:
+    """Window-local indices (ascending) of the pixels to supersample."""
+    height, width = shape
+    hit = surface.hit
+    material = np.where(hit, scene.material_index[np.maximum(surface.index_triangle, 0)], -1) \
+        if len(scene.material_index) else np.full(len(hit), -1)
+    seen = radiance + surface.emission
+    mask = refine_mask(surface.index_triangle.reshape(height, width), material.reshape(height, width),
+                       surface.geometric_normal.reshape(height, width, 3), seen.reshape(height, width, 3),
+                       relative_threshold=settings.aa_threshold, radiance_floor=1e-4 * max(float(seen.max()), 1e-30))
+    # The filter reaches filter_width pixels: a pixel that far from an edge gets samples from across it.
+    reach = int(np.ceil(settings.filter_width - 0.5))
+    return np.flatnonzero(_dilate(mask, reach))
+
+
+def _dilate(mask: np.ndarray, radius: int) -> np.ndarray:
+    """Grow a (H, W) bool mask by ``radius`` pixels (square neighbourhood), with shifted copies."""
+    grown = mask.copy()
+    height, width = mask.shape
+    for dy in range(-radius, radius + 1):  # a handful of shifts of the whole image
+        for dx in range(-radius, radius + 1):
+            # grown[y + dy, x + dx] |= mask[y, x]
+            grown[max(0, dy):height + min(0, dy), max(0, dx):width + min(0, dx)] |= \
+                mask[max(0, -dy):height + min(0, -dy), max(0, -dx):width + min(0, -dx)]
+    return grown
+
+
+def subpixel_samples(scene: Scene, tracer, extent: float, pixels: np.ndarray, settings: Settings,
+                     pixel_global: np.ndarray):
+    """Camera samples of the chosen pixels placed by the pixel filter.
+
+    Parameters
+    ----------
+    pixels : (P,) int64   window-local pixels to supersample.
+
+    Returns
+    -------
+    surface : SurfacePoints of the P * S samples (pixel-major), landing : (P * S, 2) int64 full-frame
+    (x, y) of the pixel each sample lands in, sample_global : (P * S,) int64 random-number identities.
+    """
+    camera = scene.camera
+    samples = settings.aa_samples
+    xs, ys = window_pixels(camera)
+    parent = np.repeat(pixels, samples)
+    sample = np.tile(np.arange(samples), len(pixels))
+    u = rng.uniforms(settings.seed, settings.frame, rng.STREAM_FILM, pixel_global[parent], sample, 2)
+    offset = filter_offsets(rng.stratified_2d(u, sample, samples), settings.filter_width)
+    origins, directions = camera_rays(camera, xs[parent], ys[parent], offset)
+    hits = tracer.intersect(origins, directions, None)
+    surface = shade_hits(scene, origins, directions, hits.index_triangle, hits.u, hits.v, extent)
+    landing = np.stack([xs[parent] + np.floor(offset[:, 0]).astype(np.int64),
+                        ys[parent] + np.floor(offset[:, 1]).astype(np.int64)], axis=1)
+    # Distinct from every real pixel's identity, and distinct per sample: samples do not share noise.
+    sample_global = (1 + sample) * (camera.width * camera.height) + pixel_global[parent]
+    return surface, landing, sample_global
+
+
+def inherit_blockers(blockers: BlockerMap, grid: tuple[int, int, int, int], landing: np.ndarray,
+                     n_lights: int) -> BlockerMap:
+    """A blocker map for samples: each sample gets the list of the pixel it lands in.
+
+    Parameters
+    ----------
+    blockers : the map over ``grid`` = (x0, y0, x1, y1) of the full frame (row-major pixels).
+    landing : (S, 2) full-frame (x, y); samples landing off the grid take the nearest grid pixel's list.
+    """
+    x0, y0, x1, y1 = grid
+    gx = np.clip(landing[:, 0], x0, x1 - 1) - x0
+    gy = np.clip(landing[:, 1], y0, y1 - 1) - y0
+    cell = gy * (x1 - x0) + gx
+    start = np.searchsorted(blockers.pixel, cell, side="left")
+    stop = np.searchsorted(blockers.pixel, cell, side="right")
+    count = stop - start
+    owner = np.repeat(np.arange(len(cell)), count)
+    entry = np.repeat(start, count) + (np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count))
+    # The umbra flag was decided at the pixel's centre only: sub-pixel points are clipped in full.
+    return BlockerMap(owner, blockers.light[entry], blockers.blocker[entry],
+                      np.zeros((len(cell), n_lights), bool))
+
+
+def resolve(sample_radiance: np.ndarray, surface, scene: Scene, settings: Settings, samples: int) -> np.ndarray:
+    """Mean RGBA (P, 4) of each pixel's samples: shaded radiance where a surface is hit, the background
+    (or transparent) elsewhere."""
+    rgba = np.zeros((len(sample_radiance), 4))
+    hit = surface.hit
+    rgba[hit, :3] = sample_radiance[hit] + surface.emission[hit]
+    rgba[hit, 3] = 1.0
+    if not settings.transparent_background:
+        rgba[~hit, :3] = scene.background
+        rgba[~hit, 3] = 1.0
+    return rgba.reshape(-1, samples, 4).mean(axis=1)

@@ -1,0 +1,88 @@
+"""Anti-aliasing: the extended fill's lists hold at sub-pixel points, and adaptive samples remove edge error."""
+
+import numpy as np
+
+from lazyvis_addon.core import Progress, Settings, render
+from lazyvis_addon.core import demo_scenes
+from lazyvis_addon.core.antialias import inherit_blockers, subpixel_samples
+from lazyvis_addon.core.blocker_map import build_blocker_map, reference_blocker_map
+from lazyvis_addon.core.blockers import BlockerPolygons
+from lazyvis_addon.core.demo_scenes import box_triangles, plane_under_light
+from lazyvis_addon.core.geometry import light_frames
+from lazyvis_addon.core.illumination import analytic, outgoing_radiance, visible_pieces
+from lazyvis_addon.core.render import _global_pixels, _primary
+from lazyvis_addon.core.surface import scene_extent
+from lazyvis_addon.core.trace import RayTracer
+
+
+def rods_scene(resolution=48, count=7):
+    """Thin dark rods over a lit grey plane, seen from above: high-contrast edges and sharp shadows."""
+    rods = np.concatenate([box_triangles((x, 0.0, 0.3), (0.04, 3.0, 0.04), 0.3 * x)
+                           for x in np.linspace(-1.4, 1.4, count)])
+    scene = plane_under_light(resolution=resolution, light_size=0.6, height=2.0, blocker=rods, radiance=5.0)
+    scene.material_index[2:] = 1
+    scene.materials = type(scene.materials).diffuse([(0.8, 0.8, 0.8), (0.02, 0.02, 0.02)])
+    return scene
+
+
+def shade_subsamples(scene, settings, lists):
+    """Radiance of sub-pixel samples of every pixel: 'lazy' inherits pixel lists, 'reference' computes
+    each sample's own exact list."""
+    scene = scene.validated()
+    tracer = RayTracer(scene.triangles)
+    extent = scene_extent(scene)
+    surface = _primary(scene, tracer, extent, settings, Progress())
+    frames = light_frames(scene.lights)
+    polygons = BlockerPolygons.from_triangles(scene.triangles)
+    shape = scene.camera.window_shape
+    pixel_global = _global_pixels(scene.camera)
+    pixels = np.flatnonzero(surface.hit)
+    sub, landing, _ = subpixel_samples(scene, tracer, extent, pixels, settings, pixel_global)
+    if lists == "reference":
+        sub_map = reference_blocker_map(sub, frames, polygons, (len(sub), 1), settings, Progress())
+    else:
+        # "lazy-centres": pass 1 as without anti-aliasing, lists valid at pixel centres only.
+        fill = settings if lists == "lazy" else settings.replace(aa_samples=1, extend_fill=False)
+        pixel_map = build_blocker_map(surface, frames, polygons, tracer, shape, pixel_global, fill, Progress())
+        sub_map = inherit_blockers(pixel_map, scene.camera.window, landing, len(frames))
+    pieces = visible_pieces(sub, frames, polygons, sub_map)
+    radiance = outgoing_radiance(sub, frames, pieces.couples, pieces.couple_pixel, analytic(pieces, sub, frames))
+    return radiance, sub.hit
+
+
+def test_extended_fill_lists_hold_at_subpixel_points():
+    scene = rods_scene(40)
+    base = Settings(aa_samples=4, shadow_rays=8)
+    truth, hit = shade_subsamples(scene, base, "reference")
+    extended, _ = shade_subsamples(scene, base, "lazy")
+    centres_only, _ = shade_subsamples(scene, base, "lazy-centres")
+    truth, extended, centres_only = truth[hit], extended[hit], centres_only[hit]
+
+    def error(image):
+        return np.sqrt(np.mean((image - truth) ** 2)) / np.sqrt(np.mean(truth ** 2))
+    # aa_samples > 1 turns the extension on by itself; compare with lists valid at centres only.
+    assert base.fills_boundary
+    print(f"sub-pixel error: extended fill {error(extended):.4%}, centre lists {error(centres_only):.4%}")
+    assert error(extended) < 0.005
+    assert error(extended) < 0.5 * error(centres_only)
+    assert (extended >= truth - 1e-6).all()  # a missing blocker only brightens
+
+
+def relative_rmse(image, reference):
+    return float(np.sqrt(np.mean((image - reference) ** 2)) / np.sqrt(np.mean(reference ** 2)))
+
+
+def test_adaptive_antialiasing_removes_most_edge_error():
+    """Issue 5's criterion on thin high-contrast geometry: against a 64-samples-per-pixel render the error
+    falls at least 4x from 1 sample to adaptive samples. (The bench measures the cost.)"""
+    scene = rods_scene(64, count=3)
+    truth = render(scene, Settings(aa_samples=64, aa_threshold=0.02)).combined[..., :3]
+    one = render(scene, Settings(aa_samples=1)).combined[..., :3]
+    adaptive = render(scene, Settings(aa_samples=32))
+    error_one = relative_rmse(one, truth)
+    error_adaptive = relative_rmse(adaptive.combined[..., :3], truth)
+    assert error_one > 0.02
+    assert error_adaptive < error_one / 4, (error_one, error_adaptive)
+    print(f"edge error: 1 sample {error_one:.3%}, adaptive {error_adaptive:.3%}, "
+          f"{adaptive.stats['aa_pixels']} pixels refined")
+    assert 0 < adaptive.stats["aa_pixels"] < 0.7 * 64 * 64
