@@ -84,7 +84,7 @@ def peak_memory_of_render(resolution: int) -> float:
     code = ("import resource, sys; sys.path.insert(0, %r)\n"
             "from lazyvis_addon.core import render, Settings\n"
             "from lazyvis_addon.core.demo_scenes import floating_boxes\n"
-            "render(floating_boxes(%d), Settings())\n"
+            "render(floating_boxes(%d), Settings(aa_samples=1))\n"
             "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)\n" % (str(ROOT), resolution))
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     return float(out.stdout.strip().splitlines()[-1])
@@ -103,9 +103,12 @@ def main() -> int:
     print(f"scene: {len(scene.triangles)} triangles, {len(scene.lights)} lights, "
           f"{args.resolution}x{args.resolution}, {os.cpu_count()} cores")
 
-    render(floating_boxes(32), Settings())  # warm-up (imports, thread pool)
+    # The paper's algorithm and its baselines shade one point per pixel: anti-aliasing off here, measured
+    # separately below and in bench_antialias.py.
+    centres = Settings(aa_samples=1)
+    render(floating_boxes(32), centres)  # warm-up (imports, thread pool)
     started = time.perf_counter()
-    analytic = render(scene, Settings(integrator="analytic"))
+    analytic = render(scene, centres.replace(integrator="analytic"))
     analytic_seconds = time.perf_counter() - started
     stats = analytic.stats
     print(f"\nanalytic render: {analytic_seconds:.2f} s (target < {TARGET_SECONDS:g} s)")
@@ -118,11 +121,15 @@ def main() -> int:
     print(f"  Embree alone for the same rays: {floor:.2f} s")
     peak = peak_memory_of_render(args.resolution)
     print(f"  peak memory (fresh process): {peak:.0f} MB")
+    started = time.perf_counter()
+    default = render(scene, Settings())
+    print(f"default settings (adaptive anti-aliasing, {Settings().aa_samples} samples at edges): "
+          f"{time.perf_counter() - started:.2f} s, {default.stats.get('aa_pixels', 0):,} pixels refined")
 
     windows = strips(args.resolution, args.strip_every)
     strip_pixels = sum((w[2] - w[0]) * (w[3] - w[1]) for w in windows)
     scale = n_pixels / strip_pixels
-    reference, reference_seconds = render_strips(scene, Settings(integrator="reference"), windows)
+    reference, reference_seconds = render_strips(scene, centres.replace(integrator="reference"), windows)
     lazy = crop_strips(analytic.combined, windows)
     missed_rmse = relative_rmse(lazy, reference)
     differing = float(np.mean(np.abs(lazy - reference).max(axis=1) > 1e-6 * reference.max()))
@@ -133,11 +140,11 @@ def main() -> int:
     print("\nstandard Monte Carlo (shadow rays over each light, no blocker map), on the strips:")
     rows = []
     for samples in args.mc_samples:
-        image, seconds = render_strips(scene, Settings(integrator="standard_mc", mc_samples=samples), windows)
+        image, seconds = render_strips(scene, centres.replace(integrator="standard_mc", mc_samples=samples), windows)
         error = relative_rmse(image, reference)
         rows.append((samples, seconds * scale, error))
         print(f"  {samples:4d} samples/light: {seconds * scale:7.2f} s full-frame equivalent, relative RMSE {error:.3%}")
-    reduced, reduced_seconds = render_strips(scene, Settings(integrator="reduced_mc", mc_samples=4), windows)
+    reduced, reduced_seconds = render_strips(scene, centres.replace(integrator="reduced_mc", mc_samples=4), windows)
     print(f"  reduced-domain MC, 4 samples/light: relative RMSE {relative_rmse(reduced, reference):.3%}")
 
     # MC error falls as 1/sqrt(samples) and its time grows linearly: fit both on the measured points.

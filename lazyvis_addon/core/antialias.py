@@ -33,30 +33,20 @@ def refine_pixels(scene: Scene, surface, radiance: np.ndarray, shape: tuple[int,
     mask = refine_mask(surface.index_triangle.reshape(height, width), material.reshape(height, width),
                        surface.geometric_normal.reshape(height, width, 3), seen.reshape(height, width, 3),
                        relative_threshold=settings.aa_threshold, radiance_floor=1e-4 * max(float(seen.max()), 1e-30))
-    # The filter reaches filter_width pixels: a pixel that far from an edge gets samples from across it.
-    reach = int(np.ceil(settings.filter_width - 0.5))
-    return np.flatnonzero(_dilate(mask, reach))
-
-
-def _dilate(mask: np.ndarray, radius: int) -> np.ndarray:
-    """Grow a (H, W) bool mask by ``radius`` pixels (square neighbourhood), with shifted copies."""
-    grown = mask.copy()
-    height, width = mask.shape
-    for dy in range(-radius, radius + 1):  # a handful of shifts of the whole image
-        for dx in range(-radius, radius + 1):
-            # grown[y + dy, x + dx] |= mask[y, x]
-            grown[max(0, dy):height + min(0, dy), max(0, dx):width + min(0, dx)] |= \
-                mask[max(0, -dy):height + min(0, -dy), max(0, -dx):width + min(0, -dx)]
-    return grown
+    # Not dilated by the filter's reach: on the fence and rods scenes that marked 35% more pixels for no
+    # measurable change in error (the Blackman-Harris tails carry little weight).
+    return np.flatnonzero(mask)
 
 
 def subpixel_samples(scene: Scene, tracer, extent: float, pixels: np.ndarray, settings: Settings,
-                     pixel_global: np.ndarray):
+                     pixel_global: np.ndarray, samples: int | None = None, first: int = 0):
     """Camera samples of the chosen pixels placed by the pixel filter.
 
     Parameters
     ----------
     pixels : (P,) int64   window-local pixels to supersample.
+    samples : int         samples per pixel (default ``settings.aa_samples``), stratified among themselves.
+    first : int           index of the first sample (a later batch of samples for the same pixels).
 
     Returns
     -------
@@ -64,12 +54,13 @@ def subpixel_samples(scene: Scene, tracer, extent: float, pixels: np.ndarray, se
     (x, y) of the pixel each sample lands in, sample_global : (P * S,) int64 random-number identities.
     """
     camera = scene.camera
-    samples = settings.aa_samples
+    samples = settings.aa_samples if samples is None else samples
     xs, ys = window_pixels(camera)
     parent = np.repeat(pixels, samples)
-    sample = np.tile(np.arange(samples), len(pixels))
+    stratum = np.tile(np.arange(samples), len(pixels))
+    sample = first + stratum
     u = rng.uniforms(settings.seed, settings.frame, rng.STREAM_FILM, pixel_global[parent], sample, 2)
-    offset = filter_offsets(rng.stratified_2d(u, sample, samples), settings.filter_width)
+    offset = filter_offsets(rng.stratified_2d(u, stratum, samples), settings.filter_width)
     origins, directions = camera_rays(camera, xs[parent], ys[parent], offset)
     hits = tracer.intersect(origins, directions, None)
     surface = shade_hits(scene, origins, directions, hits.index_triangle, hits.u, hits.v, extent)
@@ -103,8 +94,8 @@ def inherit_blockers(blockers: BlockerMap, grid: tuple[int, int, int, int], land
                       np.zeros((len(cell), n_lights), bool))
 
 
-def resolve(sample_radiance: np.ndarray, surface, scene: Scene, settings: Settings, samples: int) -> np.ndarray:
-    """Mean RGBA (P, 4) of each pixel's samples: shaded radiance where a surface is hit, the background
+def sample_rgba(sample_radiance: np.ndarray, surface, scene: Scene, settings: Settings, samples: int) -> np.ndarray:
+    """RGBA (P, samples, 4) of each pixel's samples: shaded radiance where a surface is hit, the background
     (or transparent) elsewhere."""
     rgba = np.zeros((len(sample_radiance), 4))
     hit = surface.hit
@@ -113,4 +104,9 @@ def resolve(sample_radiance: np.ndarray, surface, scene: Scene, settings: Settin
     if not settings.transparent_background:
         rgba[~hit, :3] = scene.background
         rgba[~hit, 3] = 1.0
-    return rgba.reshape(-1, samples, 4).mean(axis=1)
+    return rgba.reshape(-1, samples, 4)
+
+
+def resolve(sample_radiance: np.ndarray, surface, scene: Scene, settings: Settings, samples: int) -> np.ndarray:
+    """Mean RGBA (P, 4) of each pixel's samples."""
+    return sample_rgba(sample_radiance, surface, scene, settings, samples).mean(axis=1)

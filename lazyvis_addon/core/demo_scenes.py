@@ -93,3 +93,23 @@ def plane_under_light(resolution: int = 64, light_size: float = 1.0, height: flo
     lights = Lights.from_polygons([rectangle_light((0, 0, height), light_size, light_size)], [(radiance,) * 3])
     camera = Camera.orthographic(look_at((0, 0, 5.0), (0, 0, 0), up=(0, 1, 0)), resolution, resolution, 4.0)
     return Scene(tris, np.array(material_index), Materials.diffuse([(0.5, 0.5, 0.5)]), lights, camera)
+
+
+def fence(resolution: int = 256) -> Scene:
+    """Thin high-contrast geometry: a fence of dark posts and rails over a lit ground before a light wall,
+    one area light. For anti-aliasing measurements (edges and thin sharp shadows everywhere)."""
+    tris = [quad_triangles([(-6, -6, 0), (6, -6, 0), (6, 6, 0), (-6, 6, 0)]),
+            quad_triangles([(-6, 3, 0), (6, 3, 0), (6, 3, 4), (-6, 3, 4)])]
+    material_index = [0, 0, 0, 0]
+    for x in np.linspace(-3.0, 3.0, 25):  # scene construction, not a hot path
+        tris.append(box_triangles((x, 0.0, 0.6), (0.05, 0.05, 1.2)))
+        material_index += [1] * 12
+    for z in (0.4, 1.0):
+        tris.append(box_triangles((0.0, 0.0, z), (6.2, 0.03, 0.04)))
+        material_index += [1] * 12
+    lights = Lights.from_polygons([rectangle_light((1.5, -2.5, 4.0), 1.0, 1.0, normal=(-0.2, 0.5, -1.0))],
+                                  [(30.0, 28.0, 25.0)])
+    camera = Camera.perspective(look_at((0.5, -7.0, 2.2), (0.0, 0.0, 0.8)), resolution, resolution, np.radians(45.0))
+    return Scene(np.concatenate(tris), np.array(material_index),
+                 Materials.diffuse([(0.8, 0.8, 0.75), (0.03, 0.03, 0.03)]), lights, camera,
+                 background=np.array([0.02, 0.02, 0.03]))
