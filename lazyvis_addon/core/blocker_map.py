@@ -19,7 +19,7 @@ from .parallel import map_batches, thread_count
 from .progress import Progress
 from .sampling import sample_polygon_solid_angle
 from .settings import Settings
-from .surface import SurfacePoints
+from .surface import SurfacePoints, shadow_rays
 
 # Pair tests per array batch: bounds the temporaries (about 2 kB per test).
 TEST_BATCH = 65536
@@ -139,6 +139,15 @@ def _test_batch(surface, frames, blockers, pixel, blocker, light):
     return overlap, umbra
 
 
+def first_blocker(tracer, blockers: BlockerPolygons, surface: SurfacePoints, pixel: np.ndarray, origin: np.ndarray,
+                  direction: np.ndarray, tfar: np.ndarray) -> np.ndarray:
+    """The blocker each shadow ray hits first (N,) int64, -1 for none or for the receiver's own blocker."""
+    hits = tracer.intersect(origin, direction, tfar)
+    found = np.where(hits.index_triangle >= 0, blockers.of_triangle[np.maximum(hits.index_triangle, 0)], -1)
+    own = blockers.of_triangle[surface.index_triangle[pixel]]
+    return np.where(found != own, found, -1)
+
+
 def detect_seeds(surface: SurfacePoints, frames: LightFrames, blockers: BlockerPolygons, tracer, settings: Settings,
                  pixel_global: np.ndarray, progress: Progress) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """Shadow rays: S per pixel and light, stratified over the light's visible solid angle.
@@ -171,18 +180,10 @@ def detect_seeds(surface: SurfacePoints, frames: LightFrames, blockers: BlockerP
         u = rng.stratified_2d(u, sample, samples)
         polygons = setup.directions(frames, setup.uv[lit], lit)
         direction, pdf, _ = sample_polygon_solid_angle(polygons, setup.count[lit], u, repeat=samples)
-        normal = surface.geometric_normal[pix_s]
-        origin = surface.position[pix_s] + surface.offset[pix_s, None] * normal
-        # Distance to the light's plane along the ray; stop a little short so the light's own
-        # surroundings (a ceiling it is set into) are not reported.
-        toward = -setup.side[rows] * np.einsum("nk,nk->n", direction, frames.normal[lig_s])
-        height = setup.side[rows] * np.einsum("nk,nk->n", origin - frames.origin[lig_s], frames.normal[lig_s])
-        good = (pdf > 0) & (toward > 0) & (height > 0)
-        tfar = np.where(good, height / np.where(good, toward, 1.0), 0.0) * (1.0 - 1e-6)
-        hits = tracer.intersect(origin[good], direction[good], tfar[good])
-        own = blockers.of_triangle[surface.index_triangle[pix_s[good]]]
-        found = np.where(hits.index_triangle >= 0, blockers.of_triangle[np.maximum(hits.index_triangle, 0)], -1)
-        blocked = (found >= 0) & (found != own)
+        origin, tfar, good = shadow_rays(surface, pix_s, direction, pdf, frames.origin[lig_s], frames.normal[lig_s],
+                                         setup.side[rows])
+        found = first_blocker(tracer, blockers, surface, pix_s[good], origin[good], direction[good], tfar[good])
+        blocked = found >= 0
         return pix_s[good][blocked], found[blocked], lig_s[good][blocked], int(good.sum())
 
     progress.begin_stage("Blocker detection", len(hit_pixels))

@@ -15,13 +15,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import rng
-from .blocker_map import BlockerMap
+from .blocker_map import BlockerMap, first_blocker
 from .blockers import BlockerPolygons
 from .geometry import (LightFrames, ReceiverLight, blocker_in_front_of_light, cone_planes, split_convex,
                        plane_lines, polygon_area_2d, projected_solid_angle, receiver_light, trim)
 from .sampling import sample_polygon_solid_angle, sample_spherical_triangle, spherical_triangle_solid_angle
 from .settings import Settings
-from .surface import SurfacePoints
+from .surface import SurfacePoints, shadow_rays
 
 # Pieces smaller than this fraction of their light's area are dropped: slivers from shared blocker edges.
 SLIVER_FRACTION = 1e-10
@@ -332,16 +332,10 @@ def verify_visible(pieces: VisiblePieces, surface: SurfacePoints, frames: LightF
     couples = pieces.couples
     pixel = pieces.couple_pixel[couple]
     light = couples.light[couple]
-    normal = surface.geometric_normal[pixel]
-    origin = surface.position[pixel] + surface.offset[pixel, None] * normal
-    toward = -couples.side[couple] * np.einsum("nk,nk->n", direction, frames.normal[light])
-    height = couples.side[couple] * np.einsum("nk,nk->n", origin - frames.origin[light], frames.normal[light])
-    good = (pdf > 0) & (toward > 0) & (height > 0)
-    tfar = np.where(good, height / np.where(good, toward, 1.0), 0.0) * (1.0 - 1e-6)
-    hits = tracer.intersect(origin[good], direction[good], tfar[good])
-    found = np.where(hits.index_triangle >= 0, polygons.of_triangle[np.maximum(hits.index_triangle, 0)], -1)
-    own = polygons.of_triangle[surface.index_triangle[pixel[good]]]
-    blocked = (found >= 0) & (found != own)
+    origin, tfar, good = shadow_rays(surface, pixel, direction, pdf, frames.origin[light], frames.normal[light],
+                                     couples.side[couple])
+    found = first_blocker(tracer, polygons, surface, pixel[good], origin[good], direction[good], tfar[good])
+    blocked = found >= 0
     pixel, blocker, light = pixel[good][blocked], found[blocked], light[good][blocked]
     n_blockers = max(len(polygons), 1)
     key = np.unique((pixel * len(frames) + light) * n_blockers + blocker)
@@ -369,12 +363,8 @@ def standard_mc(surface: SurfacePoints, frames: LightFrames, tracer, settings: S
     u = rng.stratified_2d(u, sample, samples)
     polygons = couples.directions(frames, couples.uv[rows], rows)
     direction, pdf, _ = sample_polygon_solid_angle(polygons, couples.count[rows], u)
-    normal = surface.geometric_normal[pixel]
-    origin = surface.position[pixel] + surface.offset[pixel, None] * normal
-    toward = -couples.side[rows] * np.einsum("nk,nk->n", direction, frames.normal[light])
-    height = couples.side[rows] * np.einsum("nk,nk->n", origin - frames.origin[light], frames.normal[light])
-    good = (pdf > 0) & (toward > 0) & (height > 0)
-    tfar = np.where(good, height / np.where(good, toward, 1.0), 0.0) * (1.0 - 1e-6)
+    origin, tfar, good = shadow_rays(surface, pixel, direction, pdf, frames.origin[light], frames.normal[light],
+                                     couples.side[rows])
     occluded = np.ones(len(rows), bool)
     occluded[good] = tracer.occluded(origin[good], direction[good], tfar[good])
     cosine = np.maximum(np.einsum("nk,nk->n", direction, surface.shading_normal[pixel]), 0.0)

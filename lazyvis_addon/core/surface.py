@@ -95,3 +95,28 @@ def shade_hits(scene: Scene, ray_origins: np.ndarray, ray_directions: np.ndarray
     offset = OFFSET_RELATIVE * np.abs(position).max(axis=1) + OFFSET_SCENE * extent
     return SurfacePoints(hit, position, geometric, shading, np.where(hit, index_triangle, -1), albedo, emission,
                          offset)
+
+
+def shadow_rays(surface: SurfacePoints, pixel: np.ndarray, direction: np.ndarray, pdf: np.ndarray,
+                light_origin: np.ndarray, light_normal: np.ndarray, side: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Shadow rays from visible points towards sampled directions on lights.
+
+    Parameters
+    ----------
+    pixel : (N,) int64 rows of ``surface``; direction : (N, 3) unit; pdf : (N,) (0 = no sample);
+    light_origin, light_normal : (N, 3); side : (N,) +1 / -1 (the light's side the receiver is on).
+
+    Returns
+    -------
+    origin : (N, 3)   the visible point moved off its surface along the geometric normal.
+    tfar : (N,)       distance to the light's plane along the ray, a little short of it so that the
+                      light's own surroundings (a ceiling it is set into) are not reported.
+    good : (N,) bool  the ray heads for the light's emitting side from in front of it.
+    """
+    origin = surface.position[pixel] + surface.offset[pixel, None] * surface.geometric_normal[pixel]
+    toward = -side * np.einsum("nk,nk->n", direction, light_normal)
+    height = side * np.einsum("nk,nk->n", origin - light_origin, light_normal)
+    good = (pdf > 0) & (toward > 0) & (height > 0)
+    tfar = np.where(good, height / np.where(good, toward, 1.0), 0.0) * (1.0 - 1e-6)
+    return origin, tfar, good
