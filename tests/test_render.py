@@ -420,3 +420,25 @@ def test_verification_rays_find_what_detection_missed(boxes_scene, boxes_referen
     assert verified.stats["pairs_stored"] > plain.stats["pairs_stored"]
     # Still never darker than the truth.
     assert (verified.combined[..., :3] >= ref - 1e-6).all()
+
+
+def test_image_texture_replaces_the_albedo_and_survives_npz(tmp_path):
+    """A 2 x 2 checker (Closest) on the plane: each quadrant renders as the untextured plane scaled by its
+    albedo over the plain one (radiance is linear in albedo)."""
+    from lazyvis_addon.core.texture import ImageTexture
+    scene = plane_under_light(resolution=8)
+    plain = render(scene, CENTRES).combined[..., 0]
+    texels = np.ones((2, 2, 4), np.float32)
+    texels[0, 0, :3] = 0.2   # bottom-left
+    texels[1, 1, :3] = 0.9   # top-right
+    scene.textures = [ImageTexture(texels, srgb=False, interpolation="Closest", extension="EXTEND")]
+    scene.materials = Materials(scene.materials.albedo, texture_index=np.array([0]))
+    # The plane quad's corners (-2,-2), (2,-2), (2,2), (-2,2) get UVs (0,0), (1,0), (1,1), (0,1).
+    corners = scene.triangles[:2, :, :2]
+    scene.corner_uvs = (corners + 2.0) / 4.0
+    textured = render(scene, CENTRES).combined[..., 0]
+    expected = plain / 0.5 * np.array([[1.0] * 4 + [0.9] * 4] * 4 + [[0.2] * 4 + [1.0] * 4] * 4)
+    np.testing.assert_allclose(textured, expected, rtol=1e-5)
+    scene.save_npz(tmp_path / "textured.npz")
+    again = render(Scene.load_npz(tmp_path / "textured.npz"), CENTRES).combined[..., 0]
+    np.testing.assert_array_equal(again, textured)

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .progress import Progress
+from .texture import ImageTexture
 
 PROJECTIONS = ("perspective", "orthographic")
 
@@ -182,10 +183,14 @@ class Materials:
     emission : (M, 3) float64 or None
         Radiance the surface emits towards the camera from both sides (mesh emitters, as Cycles does);
         their light on other surfaces comes from the matching two-sided polygon lights.
+    texture_index : (M,) int64 or None
+        Row of ``Scene.textures`` whose colour replaces the albedo (an Image Texture on the base colour),
+        -1 for none.
     """
 
     albedo: np.ndarray
     emission: np.ndarray | None = None
+    texture_index: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.albedo = np.asarray(self.albedo, dtype=np.float64).reshape(-1, 3)
@@ -194,6 +199,11 @@ class Materials:
         self.emission = np.asarray(self.emission, dtype=np.float64).reshape(-1, 3)
         if self.emission.shape != self.albedo.shape:
             raise ValueError(f"material emission has shape {self.emission.shape}, albedo {self.albedo.shape}")
+        if self.texture_index is None:
+            self.texture_index = np.full(len(self.albedo), -1, np.int64)
+        self.texture_index = np.asarray(self.texture_index, dtype=np.int64).reshape(-1)
+        if len(self.texture_index) != len(self.albedo):
+            raise ValueError(f"{len(self.texture_index)} texture indices for {len(self.albedo)} materials")
 
     @classmethod
     def diffuse(cls, albedo) -> "Materials":
@@ -220,6 +230,10 @@ class Scene:
         Constant background radiance seen where no surface is hit.
     shading_normals : (T, 3, 3) float64 or None
         Optional per-vertex shading normals (smooth shading); None shades with the geometric normal.
+    corner_uvs : (T, 3, 2) float64 or None
+        Texture coordinates at each triangle corner (Blender's render UV map), needed by textures.
+    textures : list[ImageTexture]
+        Images that materials' ``texture_index`` refers to.
     """
 
     triangles: np.ndarray
@@ -229,6 +243,8 @@ class Scene:
     camera: Camera
     background: np.ndarray = field(default_factory=lambda: np.zeros(3))
     shading_normals: np.ndarray | None = None
+    corner_uvs: np.ndarray | None = None
+    textures: list = field(default_factory=list)
 
     def __post_init__(self) -> None:
         self.triangles = _as_float_array("triangles", self.triangles, (3, 3)) if len(np.asarray(self.triangles)) \
@@ -237,6 +253,8 @@ class Scene:
         self.background = np.asarray(self.background, dtype=np.float64).reshape(3)
         if self.shading_normals is not None:
             self.shading_normals = _as_float_array("shading normals", self.shading_normals, (3, 3))
+        if self.corner_uvs is not None:
+            self.corner_uvs = _as_float_array("corner UVs", self.corner_uvs, (3, 2))
 
     # -- validation ----------------------------------------------------------------------------------
     def validated(self, progress: Progress | None = None) -> "Scene":
@@ -264,6 +282,15 @@ class Scene:
             raise ValueError(f"material_index refers to materials outside 0..{len(albedo) - 1}")
         _require_finite("background colour", self.background[None])
 
+        texture_index = self.materials.texture_index
+        if (texture_index >= len(self.textures)).any() or (texture_index < -1).any():
+            raise ValueError(f"material texture_index refers to textures outside 0..{len(self.textures) - 1}")
+        corner_uvs = self.corner_uvs
+        if corner_uvs is not None and corner_uvs.shape[0] != len(triangles):
+            raise ValueError(f"corner UVs have {corner_uvs.shape[0]} rows for {len(triangles)} triangles")
+        if (texture_index >= 0).any() and corner_uvs is None:
+            progress.warn("textured materials without UVs show the texture's corner (0, 0) colour")
+            corner_uvs = np.zeros((len(triangles), 3, 2))
         shading_normals = self.shading_normals
         if shading_normals is not None:
             if shading_normals.shape != triangles.shape:
@@ -282,10 +309,14 @@ class Scene:
             triangles, material_index = triangles[keep], material_index[keep]
             if shading_normals is not None:
                 shading_normals = shading_normals[keep]
+            if corner_uvs is not None:
+                corner_uvs = corner_uvs[keep]
 
         lights = _validated_lights(self.lights, progress)
-        return Scene(triangles, material_index, Materials(albedo, emission), lights, self.camera, self.background,
-                     shading_normals)
+        if corner_uvs is not None:
+            _require_finite("corner UVs", corner_uvs)
+        return Scene(triangles, material_index, Materials(albedo, emission, texture_index), lights, self.camera,
+                     self.background, shading_normals, corner_uvs, list(self.textures))
 
     # -- files ---------------------------------------------------------------------------------------
     def save_npz(self, path) -> None:
@@ -302,6 +333,13 @@ class Scene:
         )
         if self.shading_normals is not None:
             arrays["shading_normals"] = self.shading_normals
+        if self.corner_uvs is not None:
+            arrays["corner_uvs"] = self.corner_uvs
+        arrays["texture_index"] = self.materials.texture_index
+        for index, texture in enumerate(self.textures):
+            arrays[f"texture_{index}_texels"] = texture.texels
+            arrays[f"texture_{index}_options"] = np.array([str(int(texture.srgb)), texture.interpolation,
+                                                          texture.extension])
         np.savez_compressed(path, **arrays)
 
     @classmethod
@@ -324,11 +362,19 @@ class Scene:
                             np.array(data["light_radiance"], dtype=np.float64).reshape(count, 3),
                             np.array(data["light_two_sided"], bool) if "light_two_sided" in data
                             else np.zeros(count, bool))
+            textures = []
+            while f"texture_{len(textures)}_texels" in data:
+                srgb, interpolation, extension = (str(v) for v in data[f"texture_{len(textures)}_options"])
+                textures.append(ImageTexture(np.array(data[f"texture_{len(textures)}_texels"], dtype=np.float32),
+                                             bool(int(srgb)), interpolation, extension))
             return cls(np.array(data["triangles"]), np.array(data["material_index"]),
                        Materials(np.array(data["albedo"], dtype=np.float64).reshape(-1, 3),
-                                 np.array(data["emission"]) if "emission" in data else None), lights, camera,
+                                 np.array(data["emission"]) if "emission" in data else None,
+                                 np.array(data["texture_index"]) if "texture_index" in data else None),
+                       lights, camera,
                        np.array(data["background"]) if "background" in data else np.zeros(3),
-                       np.array(data["shading_normals"]) if "shading_normals" in data else None)
+                       np.array(data["shading_normals"]) if "shading_normals" in data else None,
+                       np.array(data["corner_uvs"]) if "corner_uvs" in data else None, textures)
 
 
 def _validated_lights(lights: Lights, progress: Progress) -> Lights:

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .scene import Scene
+from .texture import interpolate_corner_attribute
 
 # Shadow-ray origins move off the surface by this many units of the hit point's coordinate magnitude
 # (float32 Embree keeps ~7 digits), plus a floor relative to the scene's extent: scale independent.
@@ -90,8 +91,16 @@ def shade_hits(scene: Scene, ray_origins: np.ndarray, ray_directions: np.ndarray
             shading[hit] = smooth
         else:
             shading[hit] = normal
-        albedo[hit] = scene.materials.albedo[scene.material_index[tri[hit]]]
-        emission[hit] = scene.materials.emission[scene.material_index[tri[hit]]]
+        material = scene.material_index[tri[hit]]
+        albedo[hit] = scene.materials.albedo[material]
+        emission[hit] = scene.materials.emission[material]
+        texture = scene.materials.texture_index[material]
+        if (texture >= 0).any():
+            rows = np.flatnonzero(hit)
+            uv = interpolate_corner_attribute(scene.corner_uvs, tri[hit], u[hit], v[hit])
+            for index in np.unique(texture[texture >= 0]):  # textures: a handful
+                chosen = texture == index
+                albedo[rows[chosen]] = scene.textures[index].lookup(uv[chosen])[:, :3]
     offset = OFFSET_RELATIVE * np.abs(position).max(axis=1) + OFFSET_SCENE * extent
     return SurfacePoints(hit, position, geometric, shading, np.where(hit, index_triangle, -1), albedo, emission,
                          offset)
