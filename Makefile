@@ -1,5 +1,5 @@
 # The two commands that do everything on a fresh machine:
-#   make render   renders the sample scene to out/ (creates .venv on first use)
+#   make render   renders sample_blends/floating_boxes.blend to out/ (EXR + PNG; creates .venv on first use)
 #   make test     runs the whole test suite
 PYTHON ?= python3
 VENV ?= .venv
@@ -14,8 +14,9 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install --quiet -e '.[dev]'
 	touch $(STAMP)
 
+# The sample .blend through the installed `lazyvis` command, as `blender -b ... -E LAZYVIS -f 1` would.
 render: $(STAMP)
-	$(PY) -m lazyvis_addon.core --demo floating_boxes -o out/floating_boxes.exr --png out/floating_boxes.png
+	$(VENV)/bin/lazyvis render sample_blends/floating_boxes.blend -f 1 -o out/floating_boxes.exr --png out/floating_boxes.png
 
 test: $(STAMP)
 	$(PY) -m pytest -q

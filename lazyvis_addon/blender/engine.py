@@ -37,6 +37,12 @@ def render_passes(view_layer):
             yield name, channels, chan_id, kind, data
 
 
+# Listeners of every render's progress besides Blender's own display, such as the command line's terminal
+# progress bar (lazyvis_addon/cli.py): core ``Progress`` objects whose ``on_stage``, ``on_advance`` and
+# ``on_warning`` are called with the engine's, and whose ``is_cancelled`` can stop the render.
+observers: list[Progress] = []
+
+
 class EngineProgress(Progress):
     """Core progress shown in Blender's render window; Esc cancels through ``test_break``."""
 
@@ -48,17 +54,23 @@ class EngineProgress(Progress):
     def on_stage(self, name: str, total: int) -> None:
         self.engine.update_stats("", f"LazyVis | {name}")
         self.engine.update_progress(0.0)
+        for observer in observers:
+            observer.on_stage(name, total)
 
     def on_advance(self, name: str, done: int, total: int) -> None:
         now = time.monotonic()
         if total and (now - self._shown > 0.1 or done >= total):  # throttled: the UI needs no more
             self._shown = now
             self.engine.update_progress(min(done / total, 1.0))
+        for observer in observers:
+            observer.on_advance(name, done, total)
 
     def is_cancelled(self) -> bool:
-        return bool(self.engine.test_break())
+        return bool(self.engine.test_break()) or any(observer.is_cancelled() for observer in observers)
 
     def on_warning(self, message: str) -> None:
+        for observer in observers:  # first, so that a progress bar can make room for Blender's report line
+            observer.on_warning(message)
         self.engine.report({'WARNING'}, f"LazyVis: {message}")
 
 

@@ -114,13 +114,14 @@ def border_window(width: int, height: int, border: tuple[float, float, float, fl
     """Core pixel window (x0, y0, x1, y1), rows counted from the top, of Blender's render border.
 
     ``border`` = (min_x, max_x, min_y, max_y) as fractions with y up (Blender's), or None. Blender
-    truncates ``fraction * size`` to whole pixels (measured: the render result has exactly this size).
+    truncates ``fraction * size`` computed in float32 to whole pixels (measured: the render result has
+    exactly this size; in float64, 7/96 * 96 truncates to 6 where Blender's float32 product gives 7).
     """
     if border is None:
         return (0, 0, width, height)
-    min_x, max_x, min_y, max_y = (float(np.float32(v)) for v in border)
-    x0, x1 = int(min_x * width), int(max_x * width)
-    bottom, top = int(min_y * height), int(max_y * height)
+    min_x, max_x, min_y, max_y = (np.float32(v) for v in border)
+    x0, x1 = int(min_x * np.float32(width)), int(max_x * np.float32(width))
+    bottom, top = int(min_y * np.float32(height)), int(max_y * np.float32(height))
     if x1 <= x0 or top <= bottom:
         raise ValueError(f"the render border selects no pixels of the {width} x {height} image; "
                          "make it larger or turn Render Region off")

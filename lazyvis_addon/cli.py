@@ -1,0 +1,408 @@
+"""``lazyvis``: render .blend files with the LazyVis engine through bpy (Blender as a Python module).
+
+    lazyvis render scene.blend -f 1 -o out.exr            # frame 1 -> out.exr
+    lazyvis render scene.blend -a -o out/frame_####.exr   # the file's frame range, out/frame_0001.exr, ...
+    lazyvis render scene.blend -s 10 -e 20 -o out/f##.exr --png out/f##.png --resolution-percentage 25
+
+does what ``blender -b scene.blend -E LAZYVIS -f 1 -o out.exr`` does with a Blender install: the add-on
+is registered, the file opened, its scene's engine set to LAZYVIS, the frame set and rendered (compositor
+and sequencer as the file has them), and the render result written. The output is always OpenEXR with
+32-bit float channels, scene-linear:
+
+- by default a single-part **RGBA** EXR of the final image (channels R, G, B, A; ZIP), as Blender writes
+  with File Format OpenEXR, Color RGBA, Float (Full);
+- with ``--multilayer`` a **multilayer** EXR with every pass of every view layer
+  (``ViewLayer.Combined.R``, ``ViewLayer.Depth.Z``, ``ViewLayer.Blocker Count.X``, ...).
+
+Output paths follow Blender: the last run of ``#`` becomes the frame number padded to its length
+(``f_###.exr`` -> ``f_007.exr``), ``//`` is the .blend file's folder. A path without ``#`` is used as given
+for a single frame; for several frames the four-digit frame number goes before its ``.exr`` extension
+(``out.exr`` -> ``out0001.exr``, ...); a folder gets ``0001.exr``, ... in it. Without ``-o`` the file's
+own output path is used exactly as Blender would (Output Properties > Output, with the ``.exr`` extension
+added when File Extensions is on).
+
+Frames (Blender's ``-f`` syntax): ``-f 3``, ``-f 1,4,9``, ``-f 1..5``, ``-f +2`` (frame start + 2),
+``-f -1`` (frame end - 1). ``-a`` renders frame start to end by frame step; ``-s``/``-e``/``-j`` set start,
+end and step (alone, they imply ``-a``). Neither ``-f`` nor ``-a``: the file's current frame.
+
+A progress bar shows on the terminal (stderr); Blender's own messages (warnings of the engine) go to
+stdout. Errors are one line on stderr and a non-zero exit status: 1 for a missing or unreadable file and
+for render errors (the engine's report), 2 for bad arguments, 130 when interrupted (Ctrl-C cancels the
+render; the frame being rendered is not written).
+
+bpy is imported only inside the functions that render, so ``lazyvis --help`` is instant.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shutil
+import signal
+import sys
+import time
+from pathlib import Path
+
+from .core.progress import Progress
+
+PROG = "lazyvis"
+ENGINE_ID = "LAZYVIS"  # lazyvis_addon.blender.engine.ENGINE_ID, without importing bpy for --help
+# First bytes of .blend files: plain, gzip-compressed (before Blender 3.0) and zstd-compressed.
+BLEND_MAGIC = (b"BLENDER", b"\x1f\x8b", b"\x28\xb5\x2f\xfd")
+FRAME_LIMIT = 1048574  # Blender's MAXFRAME
+
+
+class CliError(Exception):
+    """A problem to report as one line and exit status 1 (missing file, render error, ...)."""
+
+
+class Interrupted(Exception):
+    """Ctrl-C during a render."""
+
+
+# -- pure helpers (no bpy) ------------------------------------------------------------------------------------
+
+
+def parse_frames(spec: str, start: int, end: int) -> list[int]:
+    """Frames of Blender's ``-f`` argument: ``N``, ``+N`` (start + N), ``-N`` (end - N), ``A..B``, comma lists.
+
+    Raises
+    ------
+    ValueError  an item that is not a frame or a range.
+    """
+    def frame(text: str) -> int:
+        text = text.strip()
+        if not re.fullmatch(r"[+-]?\d+", text):
+            raise ValueError(f"'{text}' is not a frame number")
+        value = start + int(text[1:]) if text.startswith("+") else end - int(text[1:]) if text.startswith("-") \
+            else int(text)
+        return max(-FRAME_LIMIT, min(FRAME_LIMIT, value))
+
+    frames: list[int] = []
+    for item in spec.split(","):
+        if ".." in item:
+            first, last = (frame(part) for part in item.split("..", 1))
+            if last < first:
+                raise ValueError(f"the range '{item}' ends before it starts")
+            frames.extend(range(first, last + 1))
+        else:
+            frames.append(frame(item))
+    return frames
+
+
+def substitute_frame(pattern: str, frame: int) -> str:
+    """Blender's rule: the last run of ``#`` becomes the frame number, zero-padded to the run's length."""
+    runs = list(re.finditer(r"#+", pattern))
+    if not runs:
+        return pattern
+    run = runs[-1]
+    number = f"{frame:0{len(run.group())}d}" if frame >= 0 else f"-{-frame:0{len(run.group()) - 1}d}"
+    return pattern[:run.start()] + number + pattern[run.end():]
+
+
+def output_pattern(output: str, several_frames: bool, blend_dir: Path) -> str:
+    """The ``#`` pattern for ``-o``: absolute (``//`` = the .blend's folder), with ``####`` added before
+    the .exr extension when several frames would otherwise go to one file."""
+    folder = output.endswith(("/", os.sep)) or os.path.isdir(output)
+    if output.startswith("//"):
+        path = str(blend_dir / output[2:])
+    else:
+        path = os.path.abspath(os.path.expanduser(output))
+    if folder:  # a folder: frame-numbered files in it, as Blender names them
+        return os.path.join(path, "####.exr")
+    if several_frames and "#" not in os.path.basename(path):
+        stem, extension = os.path.splitext(path)
+        path = stem + "####" + extension if extension.lower() == ".exr" else path + "####"
+    return path
+
+
+def is_blend_file(path: Path) -> bool:
+    with open(path, "rb") as handle:
+        head = handle.read(8)
+    return head.startswith(BLEND_MAGIC)
+
+
+# -- terminal progress ---------------------------------------------------------------------------------------
+
+
+class TerminalProgress(Progress):
+    """A progress bar on a terminal, one line per stage otherwise (logs); Ctrl-C cancels.
+
+    Warnings are printed by Blender itself (the engine reports them); the bar only makes room for them.
+    """
+
+    WIDTH = 30
+
+    def __init__(self, stream=None, tty: bool | None = None) -> None:
+        super().__init__()
+        self.stream = stream or sys.stderr
+        self.tty = self.stream.isatty() if tty is None else tty
+        self.columns = max(20, min(100, shutil.get_terminal_size((100, 24)).columns - 1))
+        self.prefix = ""
+        self.cancelled = False
+        self._drawn = False
+        self._last = 0.0
+
+    def on_stage(self, name: str, total: int) -> None:
+        if self.tty:
+            self._draw(f"{self.prefix}{name}")
+        else:
+            self.stream.write(f"{self.prefix}{name}\n")
+            self.stream.flush()
+
+    def on_advance(self, name: str, done: int, total: int) -> None:
+        now = time.monotonic()
+        if not self.tty or not total or (now - self._last < 0.1 and done < total):
+            return
+        self._last = now
+        filled = int(self.WIDTH * min(done / total, 1.0))
+        self._draw(f"{self.prefix}{name:<20s} [{'#' * filled}{'.' * (self.WIDTH - filled)}] "
+                   f"{100.0 * min(done / total, 1.0):5.1f}%")
+
+    def on_warning(self, message: str) -> None:
+        self.clear()
+
+    def is_cancelled(self) -> bool:
+        return self.cancelled
+
+    def _draw(self, text: str) -> None:
+        text = text[:self.columns]  # one terminal line, or \r cannot redraw it
+        self.stream.write("\r" + text.ljust(self.columns if self._drawn else len(text)))
+        self.stream.flush()
+        self._drawn = True
+
+    def clear(self) -> None:
+        """Wipe the bar so that the next line starts clean."""
+        if self._drawn:
+            self.stream.write("\r" + " " * self.columns + "\r")
+            self.stream.flush()
+            self._drawn = False
+
+
+# -- rendering (imports bpy) ---------------------------------------------------------------------------------
+
+
+def configure_output(render, multilayer: bool) -> None:
+    """``render.image_settings``: OpenEXR, 32-bit float, ZIP; RGBA single layer or every pass (multilayer)."""
+    settings = render.image_settings
+    if hasattr(settings, "media_type"):  # Blender 5.0
+        settings.media_type = "MULTI_LAYER_IMAGE" if multilayer else "IMAGE"
+        settings.file_format = "OPEN_EXR_MULTILAYER" if multilayer else "OPEN_EXR"
+    else:
+        settings.file_format = "OPEN_EXR_MULTILAYER" if multilayer else "OPEN_EXR"
+    if not multilayer:
+        settings.color_mode = "RGBA"
+    settings.color_depth = "32"
+    settings.exr_codec = "ZIP"
+
+
+def _register_addon():
+    """Register the add-on unless it already is (an extension enabled in this bpy); returns the undo."""
+    import lazyvis_addon
+    from lazyvis_addon.blender.engine import LazyVisRenderEngine
+
+    if LazyVisRenderEngine.is_registered:
+        return lambda: None
+    lazyvis_addon.register()
+    return lazyvis_addon.unregister
+
+
+def _error_text(error: BaseException) -> str:
+    """Blender's operator errors read 'Error: message\\n'; keep the message."""
+    text = str(error).strip()
+    for prefix in ("Error: ", "error: "):
+        if text.startswith(prefix):
+            text = text[len(prefix):]
+    return " ".join(text.split("\n")) or type(error).__name__
+
+
+def render_command(args: argparse.Namespace) -> int:
+    blend = Path(args.file).expanduser()
+    if not blend.exists():
+        raise CliError(f"no such file: {args.file}")
+    if blend.is_dir():
+        raise CliError(f"{args.file} is a folder, not a .blend file")
+    try:
+        readable = is_blend_file(blend)
+    except OSError as error:
+        raise CliError(f"cannot read {args.file}: {error.strerror or error}") from None
+    if not readable:
+        raise CliError(f"{args.file} is not a .blend file")
+
+    try:
+        import bpy
+    except ImportError as error:
+        raise CliError(f"lazyvis render needs Blender as a Python module (pip install bpy): {error}") from None
+    from .blender import engine as engine_module
+    from .core.exr import read_exr
+    from .core.png import linear_to_srgb8, write_png
+
+    unregister = _register_addon()
+    progress = TerminalProgress()
+    engine_module.observers.append(progress)
+    previous_handler = signal.getsignal(signal.SIGINT)
+
+    def interrupt(signum, frame):  # first Ctrl-C: cancel the render cleanly; second: stop at once
+        progress.cancelled = True
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+    try:
+        try:
+            bpy.ops.wm.open_mainfile(filepath=str(blend.resolve()), load_ui=False)
+        except RuntimeError as error:
+            raise CliError(f"cannot open {args.file}: {_error_text(error)}") from None
+        if args.scene:
+            scene = bpy.data.scenes.get(args.scene)
+            if scene is None:
+                names = ", ".join(s.name for s in bpy.data.scenes)
+                raise CliError(f"{args.file} has no scene '{args.scene}' (it has: {names})")
+            if bpy.context.window is not None:
+                bpy.context.window.scene = scene
+        else:
+            scene = bpy.context.scene
+        render = scene.render
+        render.engine = ENGINE_ID
+        if args.resolution:
+            render.resolution_x, render.resolution_y = args.resolution
+        if args.resolution_percentage is not None:
+            render.resolution_percentage = args.resolution_percentage
+        if args.threads is not None:
+            render.threads_mode = "AUTO" if args.threads == 0 else "FIXED"
+            if args.threads > 0:
+                render.threads = args.threads
+        if args.frame_start is not None:
+            scene.frame_start = args.frame_start
+        if args.frame_end is not None:
+            scene.frame_end = args.frame_end
+        if args.frame_jump is not None:
+            scene.frame_step = args.frame_jump
+
+        if args.frames is not None:
+            try:
+                frames = parse_frames(args.frames, scene.frame_start, scene.frame_end)
+            except ValueError as error:
+                raise CliError(f"-f {args.frames}: {error}") from None
+        elif args.animation or args.frame_start is not None or args.frame_end is not None:
+            if scene.frame_end < scene.frame_start:
+                raise CliError(f"the frame range {scene.frame_start}..{scene.frame_end} is empty")
+            frames = list(range(scene.frame_start, scene.frame_end + 1, max(scene.frame_step, 1)))
+        else:
+            frames = [scene.frame_current]
+
+        configure_output(render, args.multilayer)
+        blend_dir = blend.resolve().parent
+        several = len(frames) > 1
+        if args.output:
+            pattern = output_pattern(args.output, several, blend_dir)
+        else:
+            pattern = None  # the file's own output path, resolved by Blender per frame
+        png_pattern = output_pattern(args.png, several, blend_dir) if args.png else None
+
+        signal.signal(signal.SIGINT, interrupt)
+        width = render.resolution_x * render.resolution_percentage // 100
+        height = render.resolution_y * render.resolution_percentage // 100
+        for index, frame in enumerate(frames):
+            progress.prefix = f"Frame {frame} ({index + 1}/{len(frames)}) | " if several else f"Frame {frame} | "
+            scene.frame_set(frame)
+            path = substitute_frame(pattern, frame) if pattern else render.frame_path(frame=frame)
+            started = time.perf_counter()
+            try:
+                bpy.ops.render.render(scene=scene.name)
+            except RuntimeError as error:
+                raise CliError(f"frame {frame}: {_error_text(error)}") from None
+            finally:
+                progress.clear()
+            if progress.cancelled:
+                raise Interrupted()
+            Path(path).parent.mkdir(parents=True, exist_ok=True)
+            result = bpy.data.images.get("Render Result")
+            if result is None:
+                raise CliError(f"frame {frame}: Blender produced no render result")
+            try:
+                result.save_render(filepath=path, scene=scene)
+            except RuntimeError as error:
+                raise CliError(f"frame {frame}: cannot write {path}: {_error_text(error)}") from None
+            seconds = time.perf_counter() - started
+            print(f"Saved: '{path}' (frame {frame}, {width} x {height}, {seconds:.2f} s)", flush=True)
+            if png_pattern:
+                png = substitute_frame(png_pattern, frame)
+                Path(png).parent.mkdir(parents=True, exist_ok=True)
+                write_png(png, linear_to_srgb8(combined_rgb(read_exr(path))))
+                print(f"Saved: '{png}' (preview, sRGB)", flush=True)
+    finally:
+        signal.signal(signal.SIGINT, previous_handler)
+        progress.clear()
+        engine_module.observers.remove(progress)
+        unregister()
+    return 0
+
+
+def combined_rgb(channels: dict):
+    """(H, W, 3) linear RGB of an EXR written by ``render``: R, G, B, or the first view layer's Combined."""
+    import numpy as np
+
+    for prefix in [""] + sorted({name[:-len("Combined.R")] for name in channels if name.endswith("Combined.R")}):
+        names = [f"{prefix}R", f"{prefix}G", f"{prefix}B"] if not prefix else \
+            [f"{prefix}Combined.{c}" for c in "RGB"]
+        if all(name in channels for name in names):
+            return np.stack([channels[name] for name in names], axis=2)
+    raise CliError("the written EXR has no RGB channels to preview")
+
+
+# -- arguments -----------------------------------------------------------------------------------------------
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
+    commands = parser.add_subparsers(dest="command", metavar="COMMAND")
+    commands.required = True
+    render = commands.add_parser(
+        "render", help="render frames of a .blend file with LazyVis to OpenEXR",
+        description="Render frames of a .blend with the LazyVis engine, like blender -b FILE -E LAZYVIS -f N. "
+                    "Writes 32-bit float OpenEXR: RGBA, or every pass with --multilayer.")
+    render.add_argument("file", metavar="FILE.blend")
+    frames = render.add_mutually_exclusive_group()
+    frames.add_argument("-f", "--render-frame", dest="frames", metavar="FRAMES",
+                        help="frame(s) to render: N, +N (start+N), -N (end-N), A..B, comma lists")
+    frames.add_argument("-a", "--render-anim", dest="animation", action="store_true",
+                        help="render the file's frame range (start to end by step)")
+    render.add_argument("-s", "--frame-start", type=int, metavar="N", help="first frame of the range")
+    render.add_argument("-e", "--frame-end", type=int, metavar="N", help="last frame of the range")
+    render.add_argument("-j", "--frame-jump", type=int, metavar="N", help="frame step of the range")
+    render.add_argument("-o", "--render-output", dest="output", metavar="PATH",
+                        help="output EXR; '#' = frame number, '//' = the .blend's folder "
+                             "(default: the file's output path)")
+    render.add_argument("--png", metavar="PATH", help="also write an sRGB preview PNG of the image ('#' as for -o)")
+    render.add_argument("--multilayer", action="store_true",
+                        help="write a multilayer EXR with every pass of every view layer (default: RGBA)")
+    render.add_argument("-S", "--scene", metavar="NAME", help="scene to render (default: the file's active scene)")
+    render.add_argument("--resolution", type=int, nargs=2, metavar=("W", "H"), help="override the resolution")
+    render.add_argument("--resolution-percentage", type=int, metavar="P",
+                        help="override the resolution scale, 1-32767 %% (e.g. 10 for a quick look)")
+    render.add_argument("-t", "--threads", type=int, metavar="N", help="render threads (0 = one per core)")
+    render.set_defaults(handler=render_command)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if getattr(args, "resolution_percentage", None) is not None and not 1 <= args.resolution_percentage <= 32767:
+        parser.error("--resolution-percentage must be between 1 and 32767")
+    if getattr(args, "resolution", None) and min(args.resolution) < 4:
+        parser.error("--resolution must be at least 4 x 4")
+    if getattr(args, "threads", None) is not None and args.threads < 0:
+        parser.error("--threads must be 0 or more")
+    try:
+        return args.handler(args)
+    except CliError as error:
+        print(f"{PROG} {args.command}: error: {error}", file=sys.stderr)
+        return 1
+    except (Interrupted, KeyboardInterrupt):
+        print(f"{PROG} {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,358 @@
+"""Build the sample .blend files of LazyVis with bpy (Blender as a Python module).
+
+    .venv/bin/python sample_blends/make_samples.py                    # all three, into sample_blends/
+    .venv/bin/python sample_blends/make_samples.py suzanne --output-dir /tmp
+
+- ``floating_boxes.blend``: the paper's Fig. 7 set-up: 49 boxes floating over a ground plane before a
+  back wall, four coloured area lights of different shapes and sizes (rectangle, square, thin rectangle,
+  disk).
+- ``chapel.blend``: a chapel-like interior (nave, pillars, altar, two blocks of benches) lit only through
+  a slatted window by one large area light outside; the benches are bevelled and arrayed by modifiers,
+  about 40,000 triangles after evaluation.
+- ``suzanne.blend``: Suzanne, smooth shaded with a level-1 subdivision surface, on a floor under a DISK
+  and an ELLIPSE area light; her Shadow Terminator Geometry Offset is 0 (LazyVis does not implement it).
+
+Every file: Diffuse BSDF materials only (Cycles' default Principled BSDF adds a specular lobe LazyVis does
+not render), a black world, area lights hidden from the camera (Cycles' default), 512 x 512 (chapel
+640 x 480) at 100%, frame range 1-1, render engine LAZYVIS, and Cycles already set up as the project's
+direct-light reference (tools/make_cycles_reference.py) so that switching the engine to Cycles gives the
+image LazyVis should match. Geometry comes from a fixed seed: running the script twice gives the same
+scenes. Files are saved compressed (each about 100 KB).
+
+Rebuilding changes the files' bytes even when the scenes are the same (Blender stores memory addresses
+and a timestamp): re-run tools/make_cycles_references.py afterwards, the agreement tests check it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import math
+import random
+import sys
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+
+SAMPLES = ("floating_boxes", "chapel", "suzanne")
+
+
+# -- building blocks (bpy imported by main before any of these run) ------------------------------------------
+
+
+def new_scene(width: int, height: int):
+    """Factory settings without objects, LazyVis registered and selected, Cycles set up as the reference."""
+    import bpy
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    reference = _reference_tool()
+    reference.configure_cycles(scene, samples=1024, seed=0)
+    scene.render.engine = "LAZYVIS"
+    scene.render.resolution_x, scene.render.resolution_y = width, height
+    scene.render.resolution_percentage = 100
+    scene.frame_start = scene.frame_end = scene.frame_current = 1
+    world = bpy.data.worlds.new("Black")
+    world.color = (0.0, 0.0, 0.0)
+    tree = world.node_tree if world.node_tree is not None else _world_nodes(world)
+    background = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeBackground")
+    background.inputs["Color"].default_value = (0.0, 0.0, 0.0, 1.0)
+    background.inputs["Strength"].default_value = 0.0
+    scene.world = world
+    return scene
+
+
+def _world_nodes(world):
+    """Blender < 5 worlds get their node tree through use_nodes."""
+    world.use_nodes = True
+    return world.node_tree
+
+
+def _reference_tool():
+    spec = importlib.util.spec_from_file_location("make_cycles_reference", ROOT / "tools" / "make_cycles_reference.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def diffuse(name: str, color) -> "bpy.types.Material":
+    """A material whose surface is one Diffuse BSDF of ``color`` (viewport colour to match)."""
+    import bpy
+
+    material = bpy.data.materials.new(name)
+    tree = material.node_tree if material.node_tree is not None else _material_nodes(material)
+    output = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial")
+    for node in [n for n in tree.nodes if n != output]:
+        tree.nodes.remove(node)
+    node = tree.nodes.new("ShaderNodeBsdfDiffuse")
+    node.location = (output.location.x - 250, output.location.y)
+    node.inputs["Color"].default_value = (*color, 1.0)
+    tree.links.new(node.outputs["BSDF"], output.inputs["Surface"])
+    material.diffuse_color = (*color, 1.0)
+    return material
+
+
+def _material_nodes(material):
+    material.use_nodes = True
+    return material.node_tree
+
+
+def box_mesh(name: str, boxes) -> "bpy.types.Mesh":
+    """One mesh of axis-aligned boxes, each ((cx, cy, cz), (sx, sy, sz)), outward-facing quads."""
+    import bpy
+
+    vertices, faces = [], []
+    for centre, size in boxes:
+        base = len(vertices)
+        for z in (-0.5, 0.5):
+            for y in (-0.5, 0.5):
+                for x in (-0.5, 0.5):
+                    vertices.append((centre[0] + x * size[0], centre[1] + y * size[1], centre[2] + z * size[2]))
+        for quad in ((0, 2, 3, 1), (4, 5, 7, 6), (0, 1, 5, 4), (2, 6, 7, 3), (0, 4, 6, 2), (1, 3, 7, 5)):
+            faces.append(tuple(base + i for i in quad))
+    mesh = bpy.data.meshes.new(name)
+    mesh.from_pydata(vertices, [], faces)
+    mesh.validate()
+    return mesh
+
+
+def add_object(name: str, data, material=None, location=(0.0, 0.0, 0.0), rotation=(0.0, 0.0, 0.0),
+               scale=(1.0, 1.0, 1.0)):
+    import bpy
+
+    obj = bpy.data.objects.new(name, data)
+    obj.location, obj.rotation_euler, obj.scale = location, rotation, scale
+    if material is not None and len(data.materials) == 0:
+        data.materials.append(material)
+    bpy.context.scene.collection.objects.link(obj)
+    return obj
+
+
+def add_camera(name: str, eye, target, angle_degrees: float):
+    """A perspective camera at ``eye`` looking at ``target``; ``angle_degrees`` spans the longer side."""
+    import bpy
+    from mathutils import Vector
+
+    data = bpy.data.cameras.new(name)
+    data.sensor_fit = "AUTO"
+    data.angle = math.radians(angle_degrees)
+    data.clip_start, data.clip_end = 0.05, 200.0
+    camera = add_object(name, data, location=eye)
+    camera.rotation_euler = (Vector(target) - Vector(eye)).to_track_quat("-Z", "Y").to_euler()
+    bpy.context.scene.camera = camera
+    return camera
+
+
+def add_area_light(name: str, location, target, shape: str, size: float, size_y: float | None = None,
+                   color=(1.0, 1.0, 1.0), radiance: float = 10.0):
+    """An area light at ``location`` whose emitting side (local -Z) faces ``target``.
+
+    ``radiance`` is the emitted radiance L of the brightest channel (W m^-2 sr^-1); the power is set from
+    Blender's L = colour P / (pi A) (radiometry note), so lights of different sizes are given alike.
+    The light is hidden from camera rays (Cycles' default; LazyVis does not draw lights either).
+    """
+    import bpy
+    from mathutils import Vector
+
+    data = bpy.data.lights.new(name, "AREA")
+    data.shape = shape
+    data.size = size
+    if size_y is not None:
+        data.size_y = size_y
+    data.color = color
+    sy = size if size_y is None or shape in ("SQUARE", "DISK") else size_y
+    area = size * sy * (math.pi / 4.0 if shape in ("DISK", "ELLIPSE") else 1.0)
+    data.energy = radiance * math.pi * area / max(color)
+    light = add_object(name, data, location=location)
+    light.rotation_euler = (Vector(target) - Vector(location)).to_track_quat("-Z", "Y").to_euler()
+    light.visible_camera = False
+    return light
+
+
+def save(path: Path) -> None:
+    import bpy
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    bpy.ops.wm.save_as_mainfile(filepath=str(path), compress=True, check_existing=False)
+
+
+# -- the scenes ------------------------------------------------------------------------------------------------
+
+
+def build_floating_boxes() -> None:
+    """49 boxes in a jittered 7 x 7 grid, 0.5-2 m above a 12 x 12 m ground, a 6 m back wall, 4 lights."""
+    new_scene(512, 512)
+    rng = random.Random(7)
+    ground = diffuse("Ground", (0.8, 0.8, 0.8))
+    wall = diffuse("Wall", (0.75, 0.72, 0.68))
+    palette = [diffuse(name, color) for name, color in (
+        ("Red", (0.8, 0.3, 0.2)), ("Green", (0.2, 0.7, 0.3)), ("Blue", (0.25, 0.35, 0.8)),
+        ("Yellow", (0.8, 0.75, 0.3)), ("Grey", (0.7, 0.7, 0.7)))]
+    add_object("Ground", box_mesh("Ground", [((0.0, 0.0, -0.05), (12.0, 12.0, 0.1))]), ground)
+    add_object("Back Wall", box_mesh("Back Wall", [((0.0, 6.05, 3.0), (12.0, 0.1, 6.0))]), wall)
+    # One unit cube per colour, shared by the boxes of that colour (linked duplicates: a small file).
+    cubes = [box_mesh(f"Box {m.name}", [((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))]) for m in palette]
+    for cube, material in zip(cubes, palette):
+        cube.materials.append(material)
+    side = 7
+    for index in range(49):
+        gx, gy = index % side, index // side
+        centre = (-3.6 + 7.2 * (gx + 0.5) / side + rng.uniform(-0.25, 0.25),
+                  -3.6 + 7.2 * (gy + 0.5) / side + rng.uniform(-0.25, 0.25), rng.uniform(0.5, 2.0))
+        size = tuple(rng.uniform(0.25, 0.6) for _ in range(3))
+        add_object(f"Box {index:02d}", cubes[index % len(cubes)], location=centre,
+                   rotation=(0.0, 0.0, rng.uniform(0.0, math.pi)), scale=size)
+    add_area_light("Warm Rectangle", (-2.0, -1.5, 4.5), (-1.6, -1.2, 0.0), "RECTANGLE", 1.6, 1.0,
+                   color=(1.0, 0.83, 0.67), radiance=15.0)
+    add_area_light("Blue Square", (2.5, 1.5, 5.0), (2.2, 1.0, 0.0), "SQUARE", 0.8,
+                   color=(0.45, 0.68, 1.0), radiance=22.0)
+    add_area_light("Red Strip", (0.5, -3.0, 3.8), (0.5, -2.0, 0.0), "RECTANGLE", 2.4, 0.5,
+                   color=(1.0, 0.48, 0.4), radiance=12.5)
+    add_area_light("Green Disk", (-1.5, 3.0, 4.2), (-1.2, 2.5, 0.0), "DISK", 1.0,
+                   color=(0.6, 1.0, 0.6), radiance=12.5)
+    add_camera("Camera", (0.0, -11.0, 7.5), (0.0, 0.0, 0.8), 50.0)
+
+
+def build_chapel() -> None:
+    """A 9 x 22 x 7 m nave with a slatted window in its right wall and one 6 x 4 m light outside it."""
+    import bpy
+
+    scene = new_scene(640, 480)
+    stone = diffuse("Stone Floor", (0.55, 0.5, 0.45))
+    plaster = diffuse("Plaster", (0.8, 0.78, 0.72))
+    wood = diffuse("Oak", (0.45, 0.28, 0.15))
+    slat_material = diffuse("Slats", (0.35, 0.33, 0.3))
+    altar_material = diffuse("Marble", (0.75, 0.74, 0.72))
+
+    half_width, half_length, height, wall = 4.5, 11.0, 7.0, 0.3
+    add_object("Floor", box_mesh("Floor", [((0.0, 0.0, -0.1), (2 * half_width + 2 * wall, 2 * half_length, 0.2))]),
+               stone)
+    add_object("Ceiling", box_mesh("Ceiling", [((0.0, 0.0, height + 0.1),
+                                                 (2 * half_width + 2 * wall, 2 * half_length, 0.2))]), plaster)
+    # Right wall (x = +half_width) with a window opening y in [-3, 3], z in [2.5, 5.5].
+    x_wall = half_width + wall / 2
+    y0, y1, z0, z1 = -3.0, 3.0, 2.5, 5.5
+    walls = [((-x_wall, 0.0, height / 2), (wall, 2 * half_length, height)),            # left
+             ((0.0, half_length + wall / 2, height / 2), (2 * half_width, wall, height)),   # altar end
+             ((0.0, -half_length - wall / 2, height / 2), (2 * half_width, wall, height)),  # entrance end
+             ((x_wall, (y0 - half_length) / 2, height / 2), (wall, y0 + half_length, height)),
+             ((x_wall, (y1 + half_length) / 2, height / 2), (wall, half_length - y1, height)),
+             ((x_wall, 0.0, z0 / 2), (wall, y1 - y0, z0)),
+             ((x_wall, 0.0, (z1 + height) / 2), (wall, y1 - y0, height - z1))]
+    add_object("Walls", box_mesh("Walls", walls), plaster)
+    # Slats: horizontal louvres and two mullions across the opening.
+    slats = [((x_wall, 0.0, z0 + (i + 0.5) * (z1 - z0) / 7), (0.12, y1 - y0, 0.12)) for i in range(7)]
+    slats += [((x_wall, y, (z0 + z1) / 2), (0.14, 0.14, z1 - z0)) for y in (-1.0, 1.0)]
+    add_object("Slats", box_mesh("Slats", slats), slat_material)
+
+    # Pillars: 24-sided cylinders on both sides of the nave.
+    pillar = bpy.data.meshes.new("Pillar")
+    _cylinder(pillar, radius=0.25, depth=height, segments=24)
+    pillar.materials.append(plaster)
+    for side in (-1, 1):
+        for index, y in enumerate((-6.0, -1.5, 3.0, 7.5)):
+            add_object(f"Pillar {'LR'[side > 0]}{index}", pillar, location=(side * 3.6, y, height / 2))
+    add_object("Altar", box_mesh("Altar", [((0.0, 9.3, 0.5), (2.4, 1.0, 1.0)), ((0.0, 9.3, 0.05), (3.2, 1.6, 0.1))]),
+               altar_material)
+
+    # Benches: seat, back and two side panels, bevelled, arrayed along the nave and mirrored across the aisle.
+    bench = box_mesh("Bench", [((-1.9, 0.0, 0.45), (2.2, 0.42, 0.06)),    # seat
+                               ((-1.9, 0.23, 0.8), (2.2, 0.05, 0.5)),     # back
+                               ((-3.0, 0.0, 0.45), (0.07, 0.5, 0.9)),     # outer side
+                               ((-0.8, 0.0, 0.45), (0.07, 0.5, 0.9)),     # aisle side
+                               ((-1.9, 0.1, 0.15), (2.2, 0.04, 0.1))])    # kneeler rail
+    bench.materials.append(wood)
+    benches = add_object("Benches", bench, location=(0.0, -8.0, 0.0))
+    bevel = benches.modifiers.new("Bevel", "BEVEL")
+    bevel.width, bevel.segments, bevel.limit_method = 0.015, 4, "NONE"
+    array = benches.modifiers.new("Rows", "ARRAY")
+    array.count = 14
+    array.use_relative_offset, array.use_constant_offset = False, True
+    array.constant_offset_displace = (0.0, 1.1, 0.0)
+    mirror = benches.modifiers.new("Aisle", "MIRROR")
+    mirror.use_axis = (True, False, False)
+    for polygon in bench.polygons:
+        polygon.use_smooth = False
+
+    add_area_light("Window Light", (9.5, -1.5, 9.0), (3.0, 0.0, 3.5), "RECTANGLE", 6.0, 4.0,
+                   color=(1.0, 0.92, 0.8), radiance=60.0)
+    add_camera("Camera", (-1.2, -10.4, 2.1), (1.0, 4.0, 1.4), 75.0)
+    scene.lazyvis.shadow_rays = 4
+
+
+def _cylinder(mesh, radius: float, depth: float, segments: int) -> None:
+    """A closed cylinder about local Z, centred on the origin (flat-shaded quads and two n-gons)."""
+    ring = [(radius * math.cos(2 * math.pi * i / segments), radius * math.sin(2 * math.pi * i / segments))
+            for i in range(segments)]
+    vertices = [(x, y, -depth / 2) for x, y in ring] + [(x, y, depth / 2) for x, y in ring]
+    faces = [(i, (i + 1) % segments, segments + (i + 1) % segments, segments + i) for i in range(segments)]
+    faces += [tuple(reversed(range(segments))), tuple(range(segments, 2 * segments))]
+    mesh.from_pydata(vertices, [], faces)
+    mesh.validate()
+
+
+def build_suzanne() -> None:
+    """Suzanne (smooth, subdivision level 1) on a 10 x 10 m floor under a disk and an ellipse light.
+
+    Level 1, not 2: every floor point in Suzanne's shadow has all the triangles of her near side that
+    overlap a light as blockers (umbra detection needs one blocker covering the whole light), so the
+    cost of pass 2 grows with the triangle count; level 2 is four times the triangles and about three
+    times the render time for an image that differs only in the silhouette.
+    """
+    import bpy
+
+    scene = new_scene(512, 512)
+    floor = diffuse("Floor", (0.7, 0.7, 0.7))
+    skin = diffuse("Suzanne", (0.8, 0.5, 0.3))
+    add_object("Floor", box_mesh("Floor", [((0.0, 0.0, -0.05), (10.0, 10.0, 0.1))]), floor)
+    bpy.ops.mesh.primitive_monkey_add(size=2.0, location=(0.0, 0.0, 1.0), rotation=(math.radians(-20), 0.0, 0.0))
+    monkey = bpy.context.object
+    monkey.name = "Suzanne"
+    monkey.data.materials.append(skin)
+    bpy.ops.object.shade_smooth()
+    subsurf = monkey.modifiers.new("Subdivision", "SUBSURF")
+    subsurf.levels, subsurf.render_levels = 1, 1
+    # Cycles starts shadow rays of smooth faces off the flat triangle (Object > Shading > Shadow Terminator
+    # > Geometry Offset, 0.1 by default); LazyVis starts them on the triangle. With 0 Cycles renders what
+    # LazyVis does (measured: tests/blender/test_cycles_agreement.py, case suzanne_terminator_offset).
+    monkey.shadow_terminator_geometry_offset = 0.0
+    add_area_light("Disk", (2.0, -2.5, 5.0), (0.0, 0.0, 0.8), "DISK", 1.2, color=(1.0, 0.9, 0.8), radiance=22.0)
+    add_area_light("Ellipse", (-3.0, -1.0, 3.5), (0.0, 0.0, 0.8), "ELLIPSE", 1.8, 0.5,
+                   color=(0.55, 0.7, 1.0), radiance=16.0)
+    add_camera("Camera", (0.0, -5.2, 2.4), (0.0, 0.0, 0.85), 40.0)
+    # Disk and ellipse lights become polygons of this many vertices with the same area (export.py).
+    scene.lazyvis.disk_vertices = 64
+
+
+BUILDERS = {"floating_boxes": build_floating_boxes, "chapel": build_chapel, "suzanne": build_suzanne}
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("names", nargs="*", help=f"samples to build (default: all of {', '.join(SAMPLES)})")
+    parser.add_argument("--output-dir", type=Path, default=HERE)
+    args = parser.parse_args(argv)
+    unknown = [n for n in args.names if n not in BUILDERS]
+    if unknown:
+        parser.error(f"unknown sample(s) {', '.join(unknown)}; choose from {', '.join(SAMPLES)}")
+
+    if str(ROOT) not in sys.path:
+        sys.path.insert(0, str(ROOT))
+    import bpy  # noqa: F401  (Blender as a Python module)
+    import lazyvis_addon
+
+    lazyvis_addon.register()
+    try:
+        for name in args.names or SAMPLES:
+            BUILDERS[name]()
+            path = args.output_dir / f"{name}.blend"
+            save(path)
+            print(f"wrote {path} ({path.stat().st_size / 1024:.0f} KB)")
+    finally:
+        lazyvis_addon.unregister()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,135 @@
+"""The scenes LazyVis is compared with Cycles on: the sample .blend files and small scenes built here.
+
+Used twice: ``tools/make_cycles_references.py`` renders each with Cycles (direct light only, twice with
+different seeds) into ``tests/references/``, and ``test_cycles_agreement.py`` renders each with LazyVis at
+the same resolution and compares. ``load`` puts a case into the current Blender session the same way for
+both, so the two renders see the same scene.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import inspect
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import bpy
+
+from blender_helpers import ROOT, add_area_light, add_camera, assign, node_material
+
+REFERENCES = ROOT / "tests" / "references"
+
+
+def box_and_two_lights(scene) -> None:
+    """A diffuse floor and box under a rotated, scaled rectangle light and an ellipse light with exposure,
+    seen through a shifted camera (the first Blender-level agreement test's scene)."""
+    add_camera(scene, location=(0.4, -5.0, 3.4), rotation=(math.radians(58), 0.0, math.radians(4)),
+               shift_x=0.05, lens=40.0)
+    bpy.ops.mesh.primitive_plane_add(size=6.0)
+    assign(bpy.context.object, node_material("Floor", Color=(0.5, 0.6, 0.7)))
+    bpy.ops.mesh.primitive_cube_add(size=0.8, location=(0.3, 0.2, 0.4), rotation=(0.0, 0.0, 0.5))
+    assign(bpy.context.object, node_material("Box", "ShaderNodeBsdfPrincipled", Base_Color=(0.8, 0.3, 0.2),
+                                             Specular_IOR_Level=0.0))
+    add_area_light(location=(0.5, -0.5, 2.5), rotation=(0.3, -0.2, 0.1), scale=(1.5, 1.0, 1.0),
+                   shape="RECTANGLE", size=1.2, size_y=0.6, energy=80.0, color=(1.0, 0.9, 0.8))
+    add_area_light(location=(-1.5, -1.0, 1.8), rotation=(0.6, -0.5, 0.0), shape="ELLIPSE", size=0.7,
+                   size_y=0.4, energy=30.0, exposure=0.5)
+
+
+def emitter_panel(scene) -> None:
+    """A floor, a slab and a tilted emissive quad (a two-sided mesh light, seen by the camera) beside a
+    square area light with Normalize off."""
+    add_camera(scene, location=(0.0, -5.5, 3.0), rotation=(math.radians(62), 0.0, 0.0), lens=35.0)
+    bpy.ops.mesh.primitive_plane_add(size=8.0)
+    assign(bpy.context.object, node_material("Floor", Color=(0.7, 0.7, 0.7)))
+    bpy.ops.mesh.primitive_cube_add(size=1.0, location=(0.2, 0.4, 0.6), scale=(1.2, 0.1, 0.5))
+    assign(bpy.context.object, node_material("Slab", Color=(0.3, 0.6, 0.3)))
+    bpy.ops.mesh.primitive_plane_add(size=0.8, location=(-1.2, 1.2, 1.3), rotation=(math.radians(70), 0.0, 0.6))
+    assign(bpy.context.object, node_material("Glow", "ShaderNodeEmission", Color=(1.0, 0.6, 0.3), Strength=6.0))
+    add_area_light(location=(1.3, -0.6, 2.2), rotation=(0.2, 0.35, 0.0), shape="SQUARE", size=0.5,
+                   energy=6.0, normalize=False)
+
+
+def cycles_default_terminator_offset(scene) -> None:
+    """Give every mesh Blender's default Shadow Terminator Geometry Offset (0.1), which LazyVis ignores."""
+    for obj in scene.objects:
+        if obj.type == "MESH":
+            obj.shadow_terminator_geometry_offset = 0.1
+
+
+# Shadow rays (and verification rays) enough for the lazy blocker map of each sample scene to hold every
+# blocker at the tests' low resolution, so that the analytic integrator gives the reference integrator's
+# image (measured against Cycles; see test_cycles_agreement.py): 4 rays per pixel miss sub-pixel blockers.
+COMPLETE_BLOCKER_MAP = {
+    "floating_boxes": {"shadow_rays": 64, "verify_rays": 64},
+    "chapel": {"shadow_rays": 1024, "verify_rays": 0},
+    "suzanne": {"shadow_rays": 512, "verify_rays": 0},
+    "suzanne_48px": {"shadow_rays": 2048, "verify_rays": 0},  # fewer pixels to share blockers with
+}
+
+
+@dataclass(frozen=True)
+class Case:
+    """One scene compared with Cycles.
+
+    ``blend`` (a sample file, relative to the repository) or ``build`` (fills an empty scene), then
+    ``prepare`` (changes the scene for both renders); ``resolution`` (W, H) of both renders; ``lazyvis`` extra ``scene.lazyvis`` settings for LazyVis;
+    ``reference_integrator``: also compare LazyVis' exact reference integrator (slow on big scenes);
+    ``samples_factor``: Cycles samples relative to the tool's --samples (the chapel, lit only through a
+    slatted window, is the path tracer's hard case: its noise needs 4x the samples to come down 2x).
+    """
+
+    name: str
+    resolution: tuple[int, int]
+    blend: str | None = None
+    build: Callable | None = None
+    prepare: Callable | None = None
+    lazyvis: dict = field(default_factory=dict)
+    reference_integrator: bool = False
+    samples_factor: int = 1
+
+    def source_digest(self) -> str:
+        """sha256 of what the scene is made from: the .blend's bytes or the builder's source code, and
+        the source of ``prepare``."""
+        data = (ROOT / self.blend).read_bytes() if self.blend else inspect.getsource(self.build).encode()
+        if self.prepare is not None:
+            data += inspect.getsource(self.prepare).encode()
+        return hashlib.sha256(data).hexdigest()
+
+    def reference_paths(self, seeds=(1, 2)) -> list[Path]:
+        return [REFERENCES / f"{self.name}.seed{seed}.exr" for seed in seeds]
+
+
+CASES = (
+    Case("floating_boxes", (96, 96), blend="sample_blends/floating_boxes.blend",
+         lazyvis=COMPLETE_BLOCKER_MAP["floating_boxes"]),
+    Case("chapel", (128, 96), blend="sample_blends/chapel.blend", lazyvis=COMPLETE_BLOCKER_MAP["chapel"],
+         samples_factor=4),
+    Case("suzanne", (96, 96), blend="sample_blends/suzanne.blend", lazyvis=COMPLETE_BLOCKER_MAP["suzanne"]),
+    Case("suzanne_terminator_offset", (48, 48), blend="sample_blends/suzanne.blend",
+         prepare=cycles_default_terminator_offset, lazyvis=COMPLETE_BLOCKER_MAP["suzanne_48px"]),
+    Case("box_and_two_lights", (64, 48), build=box_and_two_lights, lazyvis={"disk_vertices": 64},
+         reference_integrator=True),
+    Case("emitter_panel", (64, 48), build=emitter_panel, reference_integrator=True),
+)
+CASES_BY_NAME = {case.name: case for case in CASES}
+
+
+def load(case: Case):
+    """Open or build ``case`` in this Blender session at its resolution (100%); returns the scene."""
+    if case.blend:
+        bpy.ops.wm.open_mainfile(filepath=str(ROOT / case.blend), load_ui=False)
+        scene = bpy.context.scene
+    else:
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        scene = bpy.context.scene
+        scene.world = None
+        case.build(scene)
+    if case.prepare is not None:
+        case.prepare(scene)
+    scene.render.resolution_x, scene.render.resolution_y = case.resolution
+    scene.render.resolution_percentage = 100
+    scene.render.use_border = False
+    return scene

@@ -1,0 +1,229 @@
+"""``lazyvis render`` (lazyvis_addon/cli.py): the command line that does with bpy what
+``blender -b FILE.blend -E LAZYVIS -f N`` does with a Blender install. Run as subprocesses, the way it is
+used; the pure helpers (frame lists, '#' paths, the progress bar) are tested in-process."""
+
+from __future__ import annotations
+
+import io
+import os
+import signal
+import subprocess
+import sys
+import time
+import tomllib
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+from blender_helpers import ROOT, add_area_light, add_camera, read_exr, render_to_exr  # noqa: E402
+
+from lazyvis_addon import cli  # noqa: E402
+
+
+def lazyvis(*args, timeout=300) -> subprocess.CompletedProcess:
+    """``lazyvis ARGS`` as installed (``python -m lazyvis_addon.cli`` is the same entry point)."""
+    return subprocess.run([sys.executable, "-m", "lazyvis_addon.cli", *map(str, args)], cwd=ROOT,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def save_small_scene(scene, path, frames=(1, 1), animate=False):
+    """A plane under an area light seen from above, 32 x 24 px, saved to ``path``; with ``animate`` the
+    light's power is keyed to grow with the frame number."""
+    add_camera(scene)
+    bpy.ops.mesh.primitive_plane_add(size=4.0)
+    light = add_area_light(location=(0.0, 0.0, 2.0), size=1.0, energy=20.0)
+    if animate:
+        for frame in range(frames[0], frames[1] + 1):
+            light.data.energy = 10.0 * frame
+            light.data.keyframe_insert("energy", frame=frame)
+    scene.frame_start, scene.frame_end = frames
+    scene.frame_current = frames[0]
+    bpy.ops.wm.save_as_mainfile(filepath=str(path), copy=True)
+    return path
+
+
+def assert_clean_failure(result, message):
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert message in result.stderr, result.stderr
+    assert "Traceback" not in result.stdout + result.stderr
+
+
+# -- end to end ----------------------------------------------------------------------------------------------
+
+
+def test_render_writes_what_the_engine_renders(scene, tmp_path):
+    """The command's RGBA float EXR is the engine's own render, value for value, and the PNG its preview."""
+    blend = save_small_scene(scene, tmp_path / "small.blend")
+    result = lazyvis("render", blend, "-f", "1", "-o", tmp_path / "out" / "frame_###.exr",
+                     "--png", tmp_path / "out" / "frame_###.png")
+    assert result.returncode == 0, result.stdout + result.stderr
+    exr, png = tmp_path / "out" / "frame_001.exr", tmp_path / "out" / "frame_001.png"
+    assert f"Saved: '{exr}'" in result.stdout and png.read_bytes().startswith(b"\x89PNG")
+    assert "Illumination" in result.stderr  # the progress, one line per stage when not on a terminal
+    written = read_exr(exr)
+    assert sorted(written) == ["RGBA"] and written["RGBA"].shape == (24, 32, 4)
+    expected = render_to_exr(scene, tmp_path / "in_process.exr")["RGBA"]
+    np.testing.assert_array_equal(written["RGBA"], expected)
+    assert written["RGBA"][..., :3].max() > 0.0
+
+
+def test_sample_blend_at_ten_percent(tmp_path):
+    result = lazyvis("render", ROOT / "sample_blends" / "floating_boxes.blend", "-f", "1", "-o",
+                     tmp_path / "boxes.exr", "--resolution-percentage", "10")
+    assert result.returncode == 0, result.stdout + result.stderr
+    rgba = read_exr(tmp_path / "boxes.exr")["RGBA"]
+    assert rgba.shape == (51, 51, 4) and rgba.dtype == np.float32
+    assert 0.02 < rgba[..., :3].mean() < 2.0 and np.isfinite(rgba).all()
+
+
+def test_animation_range_and_frame_lists(scene, tmp_path):
+    """-a renders start..end, -s/-e narrow it, -f takes Blender's lists; each frame is evaluated (the
+    keyed light power grows with the frame) and '#' becomes the padded frame number."""
+    blend = save_small_scene(scene, tmp_path / "anim.blend", frames=(1, 3), animate=True)
+    result = lazyvis("render", blend, "-a", "-o", tmp_path / "a" / "f_##.exr")
+    assert result.returncode == 0, result.stdout + result.stderr
+    means = [read_exr(tmp_path / "a" / f"f_0{frame}.exr")["RGBA"][..., :3].mean() for frame in (1, 2, 3)]
+    # (not exactly: edge pixels' anti-aliasing samples are placed at random per frame)
+    np.testing.assert_allclose(np.array(means) / means[0], [1.0, 2.0, 3.0], rtol=2e-3)
+
+    result = lazyvis("render", blend, "-s", "2", "-e", "3", "-o", tmp_path / "s" / "g.exr")
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert sorted(os.listdir(tmp_path / "s")) == ["g0002.exr", "g0003.exr"]  # no '#': numbered like Blender
+
+    result = lazyvis("render", blend, "-f", "1,+2", "-o", tmp_path / "l" / "h#.exr")
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert sorted(os.listdir(tmp_path / "l")) == ["h1.exr", "h3.exr"]
+
+
+def test_default_output_is_the_files_own_path(scene, tmp_path):
+    scene.render.filepath = "//frames/shot_"
+    blend = save_small_scene(scene, tmp_path / "own.blend")
+    result = lazyvis("render", blend, "-f", "1")
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert (tmp_path / "frames" / "shot_0001.exr").is_file()  # Blender's own rule: digits and extension
+
+
+def test_multilayer_has_every_pass(scene, tmp_path):
+    layer = scene.view_layers[0]
+    layer.use_pass_z = True
+    blend = save_small_scene(scene, tmp_path / "passes.blend")
+    result = lazyvis("render", blend, "-o", tmp_path / "layers.exr", "--multilayer", "--png", tmp_path / "p.png")
+    assert result.returncode == 0, result.stdout + result.stderr
+    channels = read_exr(tmp_path / "layers.exr")
+    prefix = layer.name + "."
+    assert {prefix + "Combined", prefix + "Depth.Z", prefix + "Blocker Count.X"} <= set(channels)
+    assert (tmp_path / "p.png").is_file()
+
+
+# -- errors: one line, non-zero status, no traceback ---------------------------------------------------------
+
+
+def test_missing_file(tmp_path):
+    assert_clean_failure(lazyvis("render", tmp_path / "nothing.blend", "-f", "1"), "no such file")
+
+
+def test_not_a_blend_file(tmp_path):
+    fake = tmp_path / "fake.blend"
+    fake.write_text("not a blend file\n")
+    assert_clean_failure(lazyvis("render", fake, "-f", "1"), "is not a .blend file")
+
+
+def test_render_error_is_the_engines_report(scene, tmp_path):
+    bpy.ops.mesh.primitive_cube_add()
+    cube = bpy.context.object
+    cube.name = "Corrupt"
+    cube.data.vertices[3].co = (0.0, float("inf"), float("nan"))
+    blend = save_small_scene(scene, tmp_path / "nan.blend")
+    result = lazyvis("render", blend, "-f", "1", "-o", tmp_path / "x.exr")
+    assert_clean_failure(result, "frame 1: LazyVis: object 'Corrupt' has NaN or infinite vertex coordinates")
+    assert not (tmp_path / "x.exr").exists()
+
+
+def test_blenders_own_refusal_is_reported_too(scene, tmp_path):
+    blend = save_small_scene(scene, tmp_path / "nocam.blend")
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    bpy.context.scene.camera = None
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    assert_clean_failure(lazyvis("render", blend, "-f", "1"), "frame 1: Cannot render, no camera")
+
+
+def test_bad_frame_list_and_bad_arguments(scene, tmp_path):
+    blend = save_small_scene(scene, tmp_path / "small.blend")
+    assert_clean_failure(lazyvis("render", blend, "-f", "1..x"), "is not a frame number")
+    usage = lazyvis("render", blend, "-f", "1", "-a")
+    assert usage.returncode == 2 and "not allowed with" in usage.stderr
+
+
+def test_ctrl_c_cancels_without_writing(tmp_path):
+    """SIGINT during the render: exit status 130, 'interrupted', and no image for the frame."""
+    output = tmp_path / "cancelled.exr"
+    process = subprocess.Popen([sys.executable, "-m", "lazyvis_addon.cli", "render",
+                                str(ROOT / "sample_blends" / "suzanne.blend"), "-f", "1", "-o", str(output)],
+                               cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        for line in process.stderr:  # stage lines: wait until the core is at work
+            if "Blocker detection" in line or time.monotonic() > deadline:
+                break
+        process.send_signal(signal.SIGINT)
+        _, stderr = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == 130, stderr
+    assert "interrupted" in stderr and "Traceback" not in stderr
+    assert not output.exists()
+
+
+# -- in-process: the pure helpers ------------------------------------------------------------------------
+
+
+def test_frame_lists_follow_blenders_syntax():
+    assert cli.parse_frames("7", 1, 250) == [7]
+    assert cli.parse_frames("1,3,5..7", 1, 250) == [1, 3, 5, 6, 7]
+    assert cli.parse_frames("+2", 10, 20) == [12]
+    assert cli.parse_frames("-1", 10, 20) == [19]
+    with pytest.raises(ValueError):
+        cli.parse_frames("5..3", 1, 250)
+
+
+@pytest.mark.parametrize("pattern", ["out_#.exr", "out_####.exr", "a##/b###.exr", "plain.exr"])
+def test_frame_numbers_replace_hashes_as_blender_does(scene, pattern, tmp_path):
+    render = scene.render
+    render.filepath = str(tmp_path / pattern)
+    render.use_file_extension = False
+    blender = render.frame_path(frame=7)
+    ours = cli.substitute_frame(str(tmp_path / pattern), 7)
+    if "#" in pattern:
+        assert ours == blender
+    else:
+        assert ours == str(tmp_path / pattern)  # one frame to a plain path: the path as given
+
+
+def test_output_pattern_numbers_several_frames(tmp_path):
+    assert cli.output_pattern("//r/x.exr", False, tmp_path) == str(tmp_path / "r" / "x.exr")
+    assert cli.output_pattern(str(tmp_path / "x.exr"), True, tmp_path) == str(tmp_path / "x####.exr")
+    assert cli.output_pattern(str(tmp_path / "x_##.exr"), True, tmp_path) == str(tmp_path / "x_##.exr")
+    assert cli.output_pattern(str(tmp_path) + os.sep, False, tmp_path) == str(tmp_path / "####.exr")
+
+
+def test_progress_bar_on_a_terminal():
+    stream = io.StringIO()
+    progress = cli.TerminalProgress(stream, tty=True)
+    progress.prefix = "Frame 1 | "
+    progress.begin_stage("Illumination", 4)
+    progress.advance(4)
+    progress.warn("something")  # makes room for Blender's warning line
+    text = stream.getvalue()
+    assert "\rFrame 1 | Illumination" in text and "[" + "#" * 30 + "] 100.0%" in text
+    assert text.endswith("\r")
+
+
+def test_the_command_is_installed_with_the_package():
+    scripts = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"]
+    assert scripts["lazyvis"] == "lazyvis_addon.cli:main"
+    code = "import sys; from lazyvis_addon import cli; assert 'bpy' not in sys.modules; print('ok')"
+    result = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert result.stdout.strip() == "ok", result.stderr

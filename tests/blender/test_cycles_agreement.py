@@ -1,0 +1,270 @@
+"""LazyVis against Cycles on the sample .blend files and small built scenes: the proof that the exporter,
+the engine and the core reproduce Blender's own renderer, pixel for pixel, up to Cycles' noise.
+
+No Cycles render runs here. The references are committed: ``tests/references/<scene>.seed1.exr`` and
+``.seed2.exr``, made by ``tools/make_cycles_references.py`` (Cycles 5.0.1, direct light only, filter width
+0.01 = a point sample at each pixel centre, thousands of samples, seeds 1 and 2), at each scene's low
+resolution (``agreement_scenes.CASES``). Each test renders the same scene at the same resolution with
+LazyVis through Blender (``bpy.ops.render.render``, the engine's own path from the depsgraph) and compares.
+
+The statistics, over every RGB value of the image. A and B are the two Cycles renders, L the LazyVis one,
+T the true image. Cycles is unbiased with noise variance s^2 per value, independent between seeds; L has
+no noise, only an error e = L - T. Then
+
+    E[(A - B)^2] = 2 s^2,      E[(L - A)^2] = e^2 + s^2,
+
+so ``noise = RMS(A - B) / sqrt(2)`` estimates one render's noise s and ``RMS(L - A)`` equals it when LazyVis
+is exact. We require
+
+    RMS(L - A) <= 1.5 * RMS(A - B) / sqrt(2)          (the noise-floor ratio)
+
+that is LazyVis' own RMS error at most sqrt(1.5^2 - 1) = 1.1 times Cycles' noise: as close to the truth
+as the high-sample Cycles render itself. With ~10^4 or more values per image the ratio is measured to
+about 1%, so 1.5 leaves room for chance but not for a bug: a light 1% too bright, a flipped normal or a
+missing blocker shows up as a ratio of 2 to 100. The mean bias |sum(L) - sum(A)| / sum(A) must be under 1%
+(Cycles' noise moves it by ~noise / sqrt(N), far less). Both are printed relative to mean(A).
+
+What legitimately differs, and how it is handled:
+- Pixel footprint: a filter width of 0.01 is not quite a point sample. Cycles spreads each pixel's
+  samples over +-0.01 pixel (Blackman-Harris, filter_width is a radius), and about 1 sample in 1000 lands
+  anywhere in the pixel's lower-left half (the last entry of Cycles' filter table; see core/film.py).
+  Where a silhouette or crease passes within 0.01 pixel of a centre, Cycles averages both sides and LazyVis,
+  which shades the exact centre, shows one: a few dozen pixels per image, each off by up to the full
+  contrast (an emitter's edge: 6.0 against 0.03). ``near_silhouettes`` finds them with LazyVis itself
+  (depth, normal and coverage probed 0.02 pixel around each centre) and they are left out; at most 5% of
+  the pixels may be (bevelled benches have many creases). The 1-in-1000 samples are not masked: they
+  move a pixel by 0.1% of a neighbour's contrast, inside the ratio's margin.
+- Anti-aliasing: LazyVis' own is turned off here (``point_sampled``), so that it shades pixel centres.
+- Emitters seen by the camera: area lights are hidden from the camera (Cycles' default; LazyVis does not
+  draw them); an emissive mesh is seen with its radiance by both and is compared like any surface.
+- Missed blockers: at the tests' 96 px the lazy blocker map, seeded by 4 shadow rays per pixel, misses
+  blockers of sub-pixel size (the chapel's slats and bevels, Suzanne's ~4000 triangles), as the paper
+  warns; its images are 512 px and more. With the defaults the noise-floor ratio is 2.3 (boxes), 5 to 13
+  (chapel) and 26 (Suzanne), with biases of +0.1 to +2% (light leaking through missed blockers). The
+  sample scenes are therefore rendered with a converged map (64 shadow rays and 64 verification rays,
+  ``agreement_scenes.CONVERGED_BLOCKER_MAP``), which gives exactly what the reference integrator (every
+  triangle a candidate at every pixel, 10x slower) gives: the test checks the exporter, the radiometry
+  and the exact integration, not the blocker search at a resolution nobody renders.
+- Smooth shading: Cycles starts shadow rays of smooth-shaded faces off the flat triangle (Object >
+  Shading > Shadow Terminator > Geometry Offset, 0.1 by default); LazyVis starts them on the triangle.
+  The sample sets Suzanne's offset to 0, and then the two agree; with Blender's default 0.1 Suzanne's
+  self-shadowed creases come out up to 60% darker in LazyVis (case ``suzanne_terminator_offset``, a
+  test of its own that pins the difference down until LazyVis implements the offset).
+- Disk and ellipse lights are polygons of equal area in LazyVis (64 vertices here): the penumbrae move
+  by 0.1% of the light's radius, far inside the noise.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+import agreement_scenes  # noqa: E402
+from blender_helpers import read_exr, render_to_exr  # noqa: E402
+
+from lazyvis_addon.blender import engine as engine_module  # noqa: E402
+from lazyvis_addon.blender.export import read_material  # noqa: E402
+from lazyvis_addon.core.settings import Settings  # noqa: E402
+
+RATIO_LIMIT = 1.5
+BIAS_LIMIT = 0.01
+# Edge probes: how far from the pixel centre (pixels), and what counts as a different surface there.
+SILHOUETTE_REACH = 0.02
+DEPTH_STEP = 0.005    # relative depth change (a slanted plane changes ~1e-4 over the reach)
+NORMAL_STEP = math.cos(math.radians(1.0))  # smooth shading turns the normal ~0.1 degree over the reach
+INDEX = agreement_scenes.REFERENCES / "references.json"
+
+
+def point_sampled(scene, monkeypatch) -> None:
+    """LazyVis shades pixel centres only, like the references (Cycles' filter width 0.01)."""
+    if "aa_samples" not in Settings.field_names():
+        return
+    if "aa_samples" in scene.lazyvis.bl_rna.properties:
+        scene.lazyvis.aa_samples = 1
+        return
+    original = engine_module.settings_from_scene  # anti-aliasing not exposed in Blender yet
+    monkeypatch.setattr(engine_module, "settings_from_scene",
+                        lambda blender_scene: original(blender_scene).replace(aa_samples=1))
+
+
+def agreement(ours: np.ndarray, first: np.ndarray, second: np.ndarray, mask: np.ndarray | None = None) -> dict:
+    """Noise-floor ratio, bias and their parts (see the module docstring) over the (H, W, 3) images'
+    pixels where ``mask`` (H, W) is True (default all)."""
+    if mask is None:
+        mask = np.ones(first.shape[:2], bool)
+    ours, first, second = (np.asarray(x, np.float64)[mask] for x in (ours, first, second))
+    mean = max(first.mean(), 1e-30)
+    rmse = math.sqrt(np.mean((ours - first) ** 2))
+    noise = math.sqrt(np.mean((first - second) ** 2) / 2.0)
+    return dict(ratio=rmse / max(noise, 1e-30), bias=(ours.sum() - first.sum()) / max(first.sum(), 1e-30),
+                relative_rmse=rmse / mean, relative_noise=noise / mean, mean=mean,
+                excluded=int(mask.size - mask.sum()))
+
+
+def describe(name: str, stats: dict) -> str:
+    return (f"{name}: RMSE(LazyVis - Cycles) {100 * stats['relative_rmse']:.3f}% of the mean, noise floor "
+            f"{100 * stats['relative_noise']:.3f}% -> ratio {stats['ratio']:.2f} (limit {RATIO_LIMIT}); "
+            f"bias {100 * stats['bias']:+.3f}% (limit {100 * BIAS_LIMIT:.0f}%)")
+
+
+def references(case) -> tuple[np.ndarray, np.ndarray]:
+    """The two Cycles renders of ``case`` (H, W, 3), checked to be made from the scene as it is now."""
+    index = json.loads(INDEX.read_text())["scenes"]
+    assert case.name in index, f"no Cycles reference for {case.name}: run tools/make_cycles_references.py {case.name}"
+    entry = index[case.name]
+    assert entry["source_sha256"] == case.source_digest(), (
+        f"{entry['source']} changed since its Cycles reference was made: run "
+        f"tools/make_cycles_references.py {case.name} (and commit tests/references/)")
+    assert tuple(entry["resolution"]) == case.resolution
+    images = []
+    for path in case.reference_paths():
+        channels = read_exr(path)
+        rgb = channels["RGB"] if "RGB" in channels else np.stack([channels[c] for c in "RGB"], axis=2)
+        images.append(rgb[..., :3])
+    return images[0], images[1]
+
+
+def render_lazyvis(case, integrator, monkeypatch, tmp_path) -> np.ndarray:
+    """LazyVis' image (H, W, 3) of ``case`` through Blender, point-sampled."""
+    scene = agreement_scenes.load(case)
+    scene.render.engine = engine_module.ENGINE_ID
+    for key, value in case.lazyvis.items():
+        setattr(scene.lazyvis, key, value)
+    scene.lazyvis.integrator = integrator
+    point_sampled(scene, monkeypatch)
+    return render_to_exr(scene, tmp_path / f"{case.name}.exr")["RGBA"][..., :3]
+
+
+def _probe(scene, tmp_path, prefix):
+    """(depth, normal, covered) at the pixel centres: a LazyVis render's Depth and Normal passes."""
+    channels = render_to_exr(scene, tmp_path / "probe.exr", multilayer=True)
+    depth = channels[prefix + "Depth.Z"]
+    normal = np.stack([channels[prefix + f"Normal.{axis}"] for axis in "XYZ"], axis=2)
+    return depth, normal, depth < 1e9
+
+
+def _is_emitter(obj) -> bool:
+    records = [read_material(slot.material) for slot in obj.material_slots]
+    return any(record is not None and record.is_emitter for record in records)
+
+
+def excluded_pixels(case, monkeypatch, tmp_path, reach: float = SILHOUETTE_REACH):
+    """Pixels Cycles' footprint legitimately mixes: (H, W) bool near edges, (H, W) bool at emitters, and
+    the (H, W, 3) normal seen at each pixel centre (zero on the background).
+
+    - Near an edge: Cycles' filter of width 0.01 spreads each pixel's samples over +-0.01 pixel, so where
+      a silhouette or crease passes that close to the centre Cycles averages both sides and LazyVis shows
+      one. Found with LazyVis itself: the camera's lens shift moves every pixel centre by ``reach`` pixels
+      left, right, up and down (lights hidden, so only camera rays are traced), and a pixel whose depth,
+      normal or coverage changes is near an edge (a reach of 0.02 catches every edge crossing the
+      +-0.01 pixel square the samples fall in).
+    - Next to an emitter seen by the camera: 1 in 1023 of Cycles' samples lands anywhere in the pixel's
+      left or lower half (see the module docstring). Against an emitter 200 times brighter than its
+      surroundings that one sample is far above the noise, so the emitter's pixels and their 8 neighbours
+      are left out.
+    """
+    scene = agreement_scenes.load(case)
+    scene.render.engine = engine_module.ENGINE_ID
+    point_sampled(scene, monkeypatch)
+    for obj in scene.objects:
+        if obj.type == "LIGHT":
+            obj.hide_render = True
+    layer = scene.view_layers[0]
+    layer.use_pass_z = layer.use_pass_normal = True
+    prefix = layer.name + "."
+    camera = scene.camera.data
+    width, height = case.resolution
+    unit = width if camera.sensor_fit == "HORIZONTAL" else height if camera.sensor_fit == "VERTICAL" \
+        else max(width, height)  # lens shift is in units of the sensor-fitted side
+    base = camera.shift_x, camera.shift_y
+    probes = []
+    for dx, dy in ((0, 0), (1, 0), (-1, 0), (0, 1), (0, -1)):
+        camera.shift_x, camera.shift_y = base[0] + dx * reach / unit, base[1] + dy * reach / unit
+        probes.append(_probe(scene, tmp_path, prefix))
+    camera.shift_x, camera.shift_y = base
+    depth, normal, covered = probes[0]
+    edges = np.zeros(depth.shape, bool)
+    for other_depth, other_normal, other_covered in probes[1:]:
+        edges |= other_covered != covered
+        both = covered & other_covered
+        edges |= both & (np.abs(other_depth - depth) > DEPTH_STEP * np.abs(depth))
+        edges |= both & (np.sum(other_normal * normal, axis=2) < NORMAL_STEP)
+
+    at_emitters = np.zeros(depth.shape, bool)
+    emitters = [obj for obj in scene.objects if obj.type == "MESH" and _is_emitter(obj)]
+    if emitters:
+        for obj in scene.objects:
+            obj.hide_render = obj.type != "CAMERA" and obj not in emitters
+        seen = _probe(scene, tmp_path, prefix)[2]
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                at_emitters |= np.roll(np.roll(seen, dy, axis=0), dx, axis=1)
+    return edges, at_emitters, np.where(covered[..., None], normal, 0.0)
+
+
+KNOWN_DIFFERENCES = {"suzanne_terminator_offset"}
+CASES = [pytest.param(case, "analytic", id=f"{case.name}-analytic") for case in agreement_scenes.CASES
+         if case.name not in KNOWN_DIFFERENCES]
+CASES += [pytest.param(case, "reference", id=f"{case.name}-reference")
+          for case in agreement_scenes.CASES if case.reference_integrator]
+
+
+@pytest.mark.parametrize("case, integrator", CASES)
+def test_lazyvis_matches_cycles_within_its_noise(addon, case, integrator, monkeypatch, tmp_path):
+    first, second = references(case)
+    ours = render_lazyvis(case, integrator, monkeypatch, tmp_path)
+    assert ours.shape == first.shape, f"LazyVis rendered {ours.shape}, the reference is {first.shape}"
+    assert first.mean() > 0.0 and np.isfinite(ours).all()
+    edges, at_emitters, _ = excluded_pixels(case, monkeypatch, tmp_path)
+    assert edges.mean() <= 0.05, f"{edges.sum()} of {edges.size} pixels are next to an edge: too many to leave out"
+    stats = agreement(ours, first, second, ~(edges | at_emitters))
+    print(describe(f"{case.name} ({integrator}, {stats['excluded']} pixels left out)", stats))
+    assert stats["ratio"] <= RATIO_LIMIT and abs(stats["bias"]) < BIAS_LIMIT, describe(case.name, stats)
+
+
+def test_shadow_terminator_offset_is_the_one_known_difference(addon, monkeypatch, tmp_path):
+    """Suzanne with Blender's default Shadow Terminator Geometry Offset (0.1), which LazyVis does not
+    implement: Cycles lifts shadow rays of her smooth faces off the flat triangles, so her self-shadowed
+    creases are lighter in Cycles. The floor (flat, offset irrelevant) still agrees within the noise and
+    the whole image within 1%, but on Suzanne LazyVis is far outside the noise, darker. When LazyVis
+    implements the offset this test fails: move the case to the agreeing ones then."""
+    case = agreement_scenes.CASES_BY_NAME["suzanne_terminator_offset"]
+    first, second = references(case)
+    ours = render_lazyvis(case, "analytic", monkeypatch, tmp_path)
+    edges, at_emitters, normal = excluded_pixels(case, monkeypatch, tmp_path)
+    excluded = edges | at_emitters
+    floor = ~excluded & (normal[..., 2] > 0.9999)
+    suzanne = ~excluded & (np.abs(normal).sum(axis=2) > 0) & (normal[..., 2] <= 0.9999)
+    assert floor.sum() > 1000 and suzanne.sum() > 200
+    on_floor, on_suzanne = agreement(ours, first, second, floor), agreement(ours, first, second, suzanne)
+    print(describe("floor", on_floor), describe("Suzanne", on_suzanne), sep="\n")
+    assert on_floor["ratio"] <= RATIO_LIMIT, describe("floor", on_floor)
+    assert on_suzanne["ratio"] > 3.0 and on_suzanne["bias"] < -0.002, describe("Suzanne", on_suzanne)
+    assert abs(agreement(ours, first, second, ~excluded)["bias"]) < BIAS_LIMIT
+
+
+def test_the_statistics_see_a_one_percent_error(np_rng):
+    """The ratio test is sharp: Cycles-like noise of 0.3% around an image passes, the same image 1% too
+    bright (a light's power off by 1%) fails, and a noise-free copy of the truth gives a ratio of 1."""
+    truth = np_rng.uniform(0.2, 1.0, (96, 96, 3))
+    first, second = (truth * (1.0 + 0.003 * np_rng.standard_normal(truth.shape)) for _ in range(2))
+    exact = agreement(truth, first, second)
+    assert exact["ratio"] == pytest.approx(1.0, abs=0.03) and abs(exact["bias"]) < 1e-3
+    assert agreement(truth * 1.01, first, second)["ratio"] > 3.0
+
+
+def test_references_are_small_and_documented():
+    """Every case has two references of its resolution, each under 300 KB, and references.json says how
+    they were made."""
+    index = json.loads(INDEX.read_text())
+    assert "max_bounces 0" in index["settings"] and "filter_width 0.01" in index["settings"]
+    for case in agreement_scenes.CASES:
+        entry = index["scenes"][case.name]
+        assert entry["samples"] >= 4096 and entry["resolution"] == list(case.resolution)
+        for path in case.reference_paths():
+            assert path.stat().st_size < 300 * 1024, path
