@@ -174,6 +174,7 @@ def save(path: Path) -> None:
     import bpy
 
     path.parent.mkdir(parents=True, exist_ok=True)
+    bpy.context.preferences.filepaths.save_version = 0  # no .blend1 backup of the previous file
     bpy.ops.wm.save_as_mainfile(filepath=str(path), compress=True, check_existing=False)
 
 
@@ -278,7 +279,11 @@ def build_chapel() -> None:
     add_area_light("Window Light", (9.5, -1.5, 9.0), (3.0, 0.0, 3.5), "RECTANGLE", 6.0, 4.0,
                    color=(1.0, 0.92, 0.8), radiance=60.0)
     add_camera("Camera", (-1.2, -10.4, 2.1), (1.0, 4.0, 1.4), 75.0)
+    # Slats and bevels are thinner than a pixel here: 4 shadow rays per pixel miss some of them and light
+    # leaks through (measured against Cycles at 640 x 480: noise-floor ratio 17, +0.6% light). Verification
+    # rays find the missed ones: 32 of them give Cycles' image within its noise (ratio 1.18).
     scene.lazyvis.shadow_rays = 4
+    scene.lazyvis.verify_rays = 32
 
 
 def _cylinder(mesh, radius: float, depth: float, segments: int) -> None:

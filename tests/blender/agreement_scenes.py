@@ -75,10 +75,11 @@ class Case:
     """One scene compared with Cycles.
 
     ``blend`` (a sample file, relative to the repository) or ``build`` (fills an empty scene), then
-    ``prepare`` (changes the scene for both renders); ``resolution`` (W, H) of both renders; ``lazyvis`` extra ``scene.lazyvis`` settings for LazyVis;
-    ``reference_integrator``: also compare LazyVis' exact reference integrator (slow on big scenes);
-    ``samples_factor``: Cycles samples relative to the tool's --samples (the chapel, lit only through a
-    slatted window, is the path tracer's hard case: its noise needs 4x the samples to come down 2x).
+    ``prepare`` (changes the scene for both renders); ``resolution`` (W, H) of both renders;
+    ``lazyvis``: extra ``scene.lazyvis`` settings for LazyVis; ``reference_integrator``: also compare
+    LazyVis' exact reference integrator (slow on big scenes); ``samples_factor``: Cycles samples relative
+    to the tool's --samples (the chapel, lit only through a slatted window, is the path tracer's hard
+    case: at equal samples its relative noise is ten times the boxes').
     """
 
     name: str
