@@ -14,7 +14,8 @@ import numpy as np
 
 from . import rng
 from .blockers import BlockerPolygons
-from .geometry import LightFrames, PLANE_EPS, blocker_in_front_of_light, cones_overlap, cross3, receiver_light
+from .geometry import (LightFrames, PLANE_EPS, blocker_in_front_of_light, cones_overlap, cross3, light_groups,
+                       receiver_light)
 from .parallel import map_batches, thread_count
 from .progress import Progress
 from .sampling import sample_polygon_solid_angle
@@ -163,10 +164,19 @@ def detect_seeds(surface: SurfacePoints, frames: LightFrames, blockers: BlockerP
     batch = max(1, settings.pixel_batch // max(1, samples * n_lights) * 4)
     starts = list(range(0, len(hit_pixels), batch))
 
+    groups = [np.flatnonzero(group) for group in light_groups(frames)]
+
     def detect(start: int):
         pixels = hit_pixels[start:start + batch]
-        pix = np.repeat(pixels, n_lights)
-        lig = np.tile(np.arange(n_lights), len(pixels))
+        parts = [detect_group(pixels, lights) for lights in groups]  # lights of similar size: a handful
+        parts = [p for p in parts if p is not None]
+        if not parts:
+            return None
+        return tuple(np.concatenate([p[i] for p in parts]) for i in range(3)) + (sum(p[3] for p in parts),)
+
+    def detect_group(pixels: np.ndarray, lights: np.ndarray):
+        pix = np.repeat(pixels, len(lights))
+        lig = np.tile(lights, len(pixels))
         setup = receiver_light(surface.position[pix], surface.geometric_normal[pix], surface.shading_normal[pix],
                                lig, frames)
         lit = np.flatnonzero(setup.count >= 3)

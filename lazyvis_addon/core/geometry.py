@@ -74,6 +74,16 @@ def light_frames(lights: Lights) -> LightFrames:
                        np.asarray(lights.radiance, dtype=np.float64), np.asarray(lights.two_sided, bool), area)
 
 
+def light_groups(frames: LightFrames) -> list[np.ndarray]:
+    """Lights grouped by polygon size, (L,) bool masks: pieces are padded to the widest polygon of what is
+    clipped together, so quads are not cut and integrated at a 32-gon disk's width. A handful of groups
+    (vertex counts up to 4, 8, 16, ...)."""
+    if len(frames) == 0:
+        return []
+    size_class = np.ceil(np.log2(np.maximum(frames.vertex_count, 4))).astype(np.int64)
+    return [size_class == c for c in np.unique(size_class)]
+
+
 def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Cross product over the last axis (any leading shape); cheaper than np.cross on small trailing axes."""
     ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
@@ -378,7 +388,9 @@ def receiver_light(position: np.ndarray, geometric_normal: np.ndarray, shading_n
     side = np.where(frames.two_sided[light] & (height < 0), -1.0, 1.0)
     scale = np.abs(position).max(axis=1) + np.sqrt(frames.area[light])
     lit = side * height > PLANE_EPS * scale
-    uv = frames.uv[light].copy()
+    # Only as wide as the widest light involved: frames pad every light to the largest polygon (a disk).
+    width = max(int(frames.vertex_count[light].max()), 3) if len(light) else 3
+    uv = frames.uv[light, :width].copy()
     count = np.where(lit, frames.vertex_count[light], 0)
     for normal in (geometric_normal, shading_normal):  # the two horizons
         line = plane_lines(normal[:, None, :], rel, light, frames)[:, 0]

@@ -17,8 +17,11 @@ import numpy as np
 from . import rng
 from .blocker_map import BlockerMap, first_blocker
 from .blockers import BlockerPolygons
+from .bsdf import SurfaceBsdf
 from .geometry import (LightFrames, ReceiverLight, blocker_in_front_of_light, cone_planes, split_convex,
                        plane_lines, polygon_area_2d, projected_solid_angle, receiver_light, trim)
+from .ltc import ltc_shape_integral
+from .phong import phong_exponent_from_roughness, phong_polygon_integral
 from .sampling import sample_polygon_solid_angle, sample_spherical_triangle, spherical_triangle_solid_angle
 from .settings import Settings
 from .surface import SurfacePoints, shadow_rays
@@ -68,16 +71,20 @@ def couples_for(surface: SurfacePoints, frames: LightFrames, exclude: np.ndarray
     return setup, pixel[keep]
 
 
-def visible_pieces(surface: SurfacePoints, frames: LightFrames, polygons: BlockerPolygons, blockers: BlockerMap
-                   ) -> VisiblePieces:
+def visible_pieces(surface: SurfacePoints, frames: LightFrames, polygons: BlockerPolygons, blockers: BlockerMap,
+                   lights: np.ndarray | None = None) -> VisiblePieces:
     """Cut every lit couple's light by its blockers.
 
     Parameters
     ----------
     surface : the batch's SurfacePoints (N of them).
     blockers : BlockerMap whose ``pixel`` is batch-local and whose ``umbra`` is (N, L).
+    lights : (L,) bool or None    only couples with these lights (default: all).
     """
-    couples, couple_pixel = couples_for(surface, frames, blockers.umbra)
+    exclude = blockers.umbra
+    if lights is not None:
+        exclude = exclude | ~np.asarray(lights, bool)[None, :]
+    couples, couple_pixel = couples_for(surface, frames, exclude)
     n_lights = len(frames)
     lookup = np.full(len(surface) * n_lights, -1, np.int64)
     lookup[couple_pixel * n_lights + couples.light] = np.arange(len(couple_pixel))
@@ -297,17 +304,77 @@ def sample_visible(pieces: VisiblePieces, frames: LightFrames, samples: int, cou
     return couple, direction, pdf * omega[index] / total[couple], total
 
 
-def reduced_domain_mc(pieces: VisiblePieces, surface: SurfacePoints, frames: LightFrames, settings: Settings,
-                      pixel_global: np.ndarray) -> np.ndarray:
-    """Monte Carlo over the visible pieces (paper 3.3): directions uniform in their solid angle."""
+def reduced_domain_mc(pieces: VisiblePieces, surface: SurfacePoints, frames: LightFrames, bsdf: SurfaceBsdf,
+                      settings: Settings, pixel_global: np.ndarray, glossy_only: bool = False) -> np.ndarray:
+    """Monte Carlo over the visible pieces (paper 3.3): ∫ f cos θ_i dω_i per couple, (Nc, 3).
+
+    Directions uniform in the solid angle of each couple's visible pieces (``settings.mc_samples`` per
+    couple, stratified); f is the whole BSDF, or only its GGX lobes with ``glossy_only`` (then only couples
+    of glossy points are sampled). Unbiased for any BSDF; the variance of a narrow lobe under a wide light
+    is high.
+    """
     n_couples = len(pieces.couple_pixel)
     samples = settings.mc_samples
-    couple, direction, pdf, _ = sample_visible(pieces, frames, samples, np.ones(n_couples, bool), settings,
-                                               pixel_global, rng.STREAM_REDUCED_MC)
-    normal = surface.shading_normal[pieces.couple_pixel[couple]]
-    cosine = np.maximum(np.einsum("nk,nk->n", direction, normal), 0.0)
-    estimate = np.where(pdf > 0, cosine / np.maximum(pdf, 1e-300), 0.0)
-    return np.bincount(couple, weights=estimate, minlength=n_couples) / samples
+    wanted = bsdf.glossy[pieces.couple_pixel] if glossy_only else np.ones(n_couples, bool)
+    stream = rng.STREAM_GLOSSY_MC if glossy_only else rng.STREAM_REDUCED_MC
+    couple, direction, pdf, _ = sample_visible(pieces, frames, samples, wanted, settings, pixel_global, stream)
+    weights = np.zeros((n_couples, 3))
+    if len(couple) == 0:
+        return weights
+    pixel = pieces.couple_pixel[couple]
+    cosine = np.maximum(np.einsum("nk,nk->n", direction, surface.shading_normal[pixel]), 0.0)
+    f = bsdf.glossy_value(pixel, direction) if glossy_only else bsdf.value(pixel, direction)
+    estimate = f * np.where(pdf > 0, cosine / np.maximum(pdf, 1e-300), 0.0)[:, None]
+    for channel in range(3):  # colour channels
+        weights[:, channel] = np.bincount(couple, weights=estimate[:, channel], minlength=n_couples) / samples
+    return weights
+
+
+def glossy_share(pieces: VisiblePieces, frames: LightFrames, bsdf: SurfaceBsdf, method: str) -> np.ndarray:
+    """The share of each couple's GGX lobe that falls in its visible pieces, (Nc,) in [0, 1].
+
+    ``method`` "ltc": linearly transformed cosines (Heitz et al. 2016) over every piece; "phong": the
+    paper's normalised Phong lobe about the mirror direction, exponent peak-matched to the roughness
+    (``phong.phong_exponent_from_roughness``). Times ``bsdf.glossy_scale`` this is ∫ f_glossy cos θ_i.
+    Only pieces of glossy points are integrated.
+    """
+    n_couples = len(pieces.couple_pixel)
+    share = np.zeros(n_couples)
+    piece_pixel = pieces.couple_pixel[pieces.couple]
+    lobed = np.flatnonzero(bsdf.glossy[piece_pixel])
+    if len(lobed) == 0:
+        return share
+    couple = pieces.couple[lobed]
+    pixel = piece_pixel[lobed]
+    directions = pieces.couples.directions(frames, pieces.uv[lobed], couple)
+    normal, view, roughness = bsdf.normal[pixel], bsdf.view[pixel], bsdf.roughness[pixel]
+    if method == "ltc":
+        per_piece = ltc_shape_integral(directions, normal, view, roughness, pieces.count[lobed])
+    elif method == "phong":
+        per_piece = phong_polygon_integral(directions, normal, view, phong_exponent_from_roughness(roughness),
+                                           pieces.count[lobed])
+    else:
+        raise ValueError(f"unknown glossy integral {method!r}")
+    return np.bincount(couple, weights=per_piece, minlength=n_couples)
+
+
+def couple_weights(pieces: VisiblePieces, surface: SurfacePoints, frames: LightFrames, bsdf: SurfaceBsdf,
+                   settings: Settings, pixel_global: np.ndarray) -> np.ndarray:
+    """∫ f cos θ_i dω_i over each couple's visible pieces, (Nc, 3): what multiplies the light's radiance.
+
+    ``settings.integrator`` "reduced_mc" samples the whole BSDF; otherwise the diffuse lobe is exact
+    (Lambert's formula) and the GGX lobes follow ``settings.glossy_integrator``.
+    """
+    if settings.integrator == "reduced_mc":
+        return reduced_domain_mc(pieces, surface, frames, bsdf, settings, pixel_global)
+    projected = analytic(pieces, surface, frames)
+    weights = projected[:, None] * bsdf.diffuse[pieces.couple_pixel] / np.pi
+    if not bsdf.glossy.any():
+        return weights
+    if settings.glossy_integrator == "mc":
+        return weights + reduced_domain_mc(pieces, surface, frames, bsdf, settings, pixel_global, glossy_only=True)
+    share = glossy_share(pieces, frames, bsdf, settings.glossy_integrator)
+    return weights + share[:, None] * bsdf.glossy_scale[pieces.couple_pixel]
 
 
 def verify_visible(pieces: VisiblePieces, surface: SurfacePoints, frames: LightFrames, polygons: BlockerPolygons,
@@ -342,19 +409,22 @@ def verify_visible(pieces: VisiblePieces, surface: SurfacePoints, frames: LightF
     return key // n_blockers // len(frames), key % n_blockers, key // n_blockers % len(frames), int(good.sum())
 
 
-def standard_mc(surface: SurfacePoints, frames: LightFrames, tracer, settings: Settings, pixel_global: np.ndarray
+def standard_mc(surface: SurfacePoints, frames: LightFrames, tracer, bsdf: SurfaceBsdf, settings: Settings,
+                pixel_global: np.ndarray, lights: np.ndarray | None = None
                 ) -> tuple[np.ndarray, ReceiverLight, np.ndarray, int]:
     """The paper's baseline: shadow rays over the whole light, no blocker map.
 
     Returns
     -------
-    F : (Nc,) projected solid angle estimates, couples, couple_pixel, rays cast.
+    weights : (Nc, 3) estimates of ∫ f cos θ_i dω_i, couples, couple_pixel, rays cast.
     """
-    couples, couple_pixel = couples_for(surface, frames)
+    couples, couple_pixel = couples_for(surface, frames, None if lights is None else
+                                        np.broadcast_to(~np.asarray(lights, bool)[None, :],
+                                                        (len(surface), len(frames))))
     samples = settings.mc_samples
     n_couples = len(couple_pixel)
     if n_couples == 0:
-        return np.zeros(0), couples, couple_pixel, 0
+        return np.zeros((0, 3)), couples, couple_pixel, 0
     rows = np.repeat(np.arange(n_couples), samples)
     sample = np.tile(np.arange(samples), n_couples)
     pixel, light = couple_pixel[rows], couples.light[rows]
@@ -368,16 +438,27 @@ def standard_mc(surface: SurfacePoints, frames: LightFrames, tracer, settings: S
     occluded = np.ones(len(rows), bool)
     occluded[good] = tracer.occluded(origin[good], direction[good], tfar[good])
     cosine = np.maximum(np.einsum("nk,nk->n", direction, surface.shading_normal[pixel]), 0.0)
-    estimate = np.where(~occluded, cosine / np.maximum(pdf, 1e-300), 0.0)
-    return np.bincount(rows, weights=estimate, minlength=n_couples) / samples, couples, couple_pixel, int(good.sum())
+    visible = ~occluded & (pdf > 0)
+    estimate = np.zeros((len(rows), 3))
+    shown = np.flatnonzero(visible)
+    estimate[shown] = bsdf.value(pixel[shown], direction[shown]) * (cosine[shown] / pdf[shown])[:, None]
+    weights = np.stack([np.bincount(rows, weights=estimate[:, c], minlength=n_couples) for c in range(3)], axis=1)
+    return weights / samples, couples, couple_pixel, int(good.sum())
 
 
 def outgoing_radiance(surface: SurfacePoints, frames: LightFrames, couples: ReceiverLight, couple_pixel: np.ndarray,
                       projected: np.ndarray) -> np.ndarray:
     """Diffuse outgoing radiance (N, 3): albedo / pi * sum over couples of light radiance * F."""
-    radiance = np.zeros((len(surface), 3))
+    return reflected_radiance(len(surface), frames, couples, couple_pixel,
+                              projected[:, None] * surface.albedo[couple_pixel] / np.pi)
+
+
+def reflected_radiance(n_points: int, frames: LightFrames, couples: ReceiverLight, couple_pixel: np.ndarray,
+                       weights: np.ndarray) -> np.ndarray:
+    """Outgoing radiance (N, 3): sum over each point's couples of light radiance * weights (Nc, 3)."""
+    radiance = np.zeros((n_points, 3))
     if len(couple_pixel):
-        contribution = frames.radiance[couples.light] * projected[:, None]
+        contribution = frames.radiance[couples.light] * weights
         for channel in range(3):  # colour channels
-            radiance[:, channel] = np.bincount(couple_pixel, weights=contribution[:, channel], minlength=len(surface))
-    return radiance * surface.albedo / np.pi
+            radiance[:, channel] = np.bincount(couple_pixel, weights=contribution[:, channel], minlength=n_points)
+    return radiance

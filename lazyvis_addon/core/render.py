@@ -18,8 +18,9 @@ from .blocker_map import BlockerMap, build_blocker_map, flood_fill, reference_bl
 from .camera import camera_rays, planar_depth, window_pixels
 from .geometry import light_frames
 from .parallel import map_batches, thread_count
-from .illumination import (analytic, outgoing_radiance, reduced_domain_mc, standard_mc, verify_visible,
-                           visible_pieces)
+from .bsdf import SurfaceBsdf
+from .geometry import light_groups
+from .illumination import couple_weights, reflected_radiance, standard_mc, verify_visible, visible_pieces
 from .progress import Progress
 from .scene import Scene
 from .settings import Settings
@@ -106,7 +107,7 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
 
     verify = lazy and settings.verify_rays > 0 and len(frames) > 0
     radiance, pass2_stats, missed = _illuminate(surface, frames, polygons, tracer, blockers, settings, pixel_global,
-                                                progress, verify)
+                                                progress, scene.materials, verify)
     stats.update(pass2_stats)
     stats["missed_pairs_found"] = []
     for _ in range(settings.refine_rounds if verify else 0):  # refinement rounds: a few
@@ -131,7 +132,7 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
             break
         part, part_stats, missed = _illuminate(surface.take(changed), frames, polygons, tracer,
                                                window_map.crop(changed, n_window), settings, pixel_global[changed],
-                                               progress, verify)
+                                               progress, scene.materials, verify)
         radiance[changed] = part
         missed = (changed[missed[0]], missed[1], missed[2])
         stats["verify_rays"] += part_stats["verify_rays"]
@@ -151,7 +152,8 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
                 sub_map = inherit_blockers(outer_map, outer, landing, len(frames))
             elif settings.integrator == "reference":
                 sub_map = reference_blocker_map(sub, frames, polygons, (len(sub), 1), settings, progress)
-            sub_radiance, _, _ = _illuminate(sub, frames, polygons, tracer, sub_map, settings, sub_global, progress)
+            sub_radiance, _, _ = _illuminate(sub, frames, polygons, tracer, sub_map, settings, sub_global, progress,
+                                             scene.materials)
             resolved = (pixels, resolve(sub_radiance, sub, scene, settings, settings.aa_samples))
 
     progress.begin_stage("Composing passes")
@@ -202,7 +204,7 @@ def _primary(scene: Scene, tracer, extent: float, settings: Settings, progress: 
 
 
 def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: BlockerMap | None, settings: Settings,
-                pixel_global: np.ndarray, progress: Progress, verify: bool = False
+                pixel_global: np.ndarray, progress: Progress, materials, verify: bool = False
                 ) -> tuple[np.ndarray, dict, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Pass 2 over pixel batches.
 
@@ -223,34 +225,41 @@ def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: Bloc
     if blockers is not None:
         entry_bounds = np.searchsorted(blockers.pixel, np.arange(0, n_pixels + batch, batch))
     starts = list(range(0, n_pixels, batch))
+    groups = light_groups(frames)
 
     def shade(index: int):
         start = starts[index]
         stop = min(start + batch, n_pixels)
         part = surface.take(np.arange(start, stop))
+        bsdf = SurfaceBsdf.of(part, materials)
         globals_ = pixel_global[start:stop]
-        pieces = None
-        if settings.integrator == "standard_mc":
-            projected, couples, couple_pixel, _ = standard_mc(part, frames, tracer, settings, globals_)
-        else:
+        result = np.zeros((stop - start, 3))
+        n_pieces, rounds, verify_rays, found = 0, 0, 0, []
+        local = None
+        if settings.integrator != "standard_mc":
             lo, hi = entry_bounds[index], entry_bounds[index + 1]
             local = BlockerMap(blockers.pixel[lo:hi] - start, blockers.light[lo:hi], blockers.blocker[lo:hi],
                                blockers.umbra[start:stop])
-            pieces = visible_pieces(part, frames, polygons, local)
-            couples, couple_pixel = pieces.couples, pieces.couple_pixel
-            if settings.integrator == "reduced_mc":
-                projected = reduced_domain_mc(pieces, part, frames, settings, globals_)
+        for lights in groups:  # lights of similar polygon size: a handful of groups
+            if settings.integrator == "standard_mc":
+                weights, couples, couple_pixel, _ = standard_mc(part, frames, tracer, bsdf, settings, globals_,
+                                                                lights)
             else:
-                projected = analytic(pieces, part, frames)
-        missed = (empty, empty, empty, 0)
-        if verify and pieces is not None:
-            # Every lit couple: a couple with no blocker found may be one whose blockers all escaped pass 1.
-            found = verify_visible(pieces, part, frames, polygons, tracer, np.ones(len(couple_pixel), bool),
-                                   settings, globals_)
-            missed = (found[0] + start,) + found[1:]
-        result = outgoing_radiance(part, frames, couples, couple_pixel, projected)
-        return start, stop, result, (0 if pieces is None else len(pieces.count)), \
-            (0 if pieces is None else pieces.max_rounds), missed
+                pieces = visible_pieces(part, frames, polygons, local, lights)
+                couples, couple_pixel = pieces.couples, pieces.couple_pixel
+                weights = couple_weights(pieces, part, frames, bsdf, settings, globals_)
+                n_pieces += len(pieces.count)
+                rounds = max(rounds, pieces.max_rounds)
+                if verify:
+                    # Every lit couple: a couple with no blocker found may be one whose blockers all escaped
+                    # pass 1.
+                    pixel, blocker, light, rays = verify_visible(pieces, part, frames, polygons, tracer,
+                                                                 np.ones(len(couple_pixel), bool), settings, globals_)
+                    found.append((pixel + start, blocker, light))
+                    verify_rays += rays
+            result += reflected_radiance(stop - start, frames, couples, couple_pixel, weights)
+        missed = tuple(np.concatenate([f[i] for f in found]) if found else empty for i in range(3))
+        return start, stop, result, n_pieces, rounds, missed + (verify_rays,)
 
     progress.begin_stage("Illumination", n_pixels)
     units = [min(start + batch, n_pixels) - start for start in starts]

@@ -176,38 +176,84 @@ class Lights:
 class Materials:
     """Material table, indexed by ``Scene.material_index``.
 
+    One row describes the BSDFs LazyVis integrates (those of Cycles, evaluated as Cycles does; ``ggx.py``):
+
+        f = diffuse_weight * w(ω_o) * base / π                               (diffuse)
+          + principled * ((1 - metallic) * specular layer + metallic * metal) (Principled BSDF's GGX lobes)
+          + glossy_colour * GGX                                              (a Glossy BSDF)
+
+    with w = (1 - metallic) times the Principled layering weight for Principled rows, 1 otherwise.
+    All GGX lobes of a row share its roughness (α = roughness²) and distribution (``multiscatter``).
+
     Attributes
     ----------
     albedo : (M, 3) float64
-        Diffuse reflectance per colour channel in [0, 1]; the BRDF is albedo / pi.
+        Base colour in [0, 1]: the diffuse colour, and the metal's F0 for Principled rows.
     emission : (M, 3) float64 or None
         Radiance the surface emits towards the camera from both sides (mesh emitters, as Cycles does);
         their light on other surfaces comes from the matching two-sided polygon lights.
     texture_index : (M,) int64 or None
         Row of ``Scene.textures`` whose colour replaces the albedo (an Image Texture on the base colour),
         -1 for none.
+    diffuse_weight : (M,) float64, default 1
+        Weight of the diffuse closure (a Mix shader's factor; 0 for a pure Glossy BSDF).
+    principled : (M,) bool, default False
+        The row is a Principled BSDF: dielectric specular layer over the diffuse base, metal lobe.
+    metallic, roughness, ior, specular_level : (M,) float64
+        Principled inputs (Specular IOR Level: 0.5 is physical); roughness also of the Glossy BSDF.
+        Defaults 0, 0.5, 1.5, 0.5.
+    specular_tint : (M, 3) float64, default white
+    glossy_colour : (M, 3) float64, default black
+        Weight of a Glossy BSDF closure (its colour times a Mix shader's factor); black for none.
+    multiscatter : (M,) bool, default True
+        Multiscatter GGX (Cycles' default) rather than GGX.
     """
 
     albedo: np.ndarray
     emission: np.ndarray | None = None
     texture_index: np.ndarray | None = None
+    diffuse_weight: np.ndarray | None = None
+    principled: np.ndarray | None = None
+    metallic: np.ndarray | None = None
+    roughness: np.ndarray | None = None
+    ior: np.ndarray | None = None
+    specular_level: np.ndarray | None = None
+    specular_tint: np.ndarray | None = None
+    glossy_colour: np.ndarray | None = None
+    multiscatter: np.ndarray | None = None
+
+    # (field, default, trailing shape, dtype) of the per-row parameters after the albedo.
+    PARAMETERS = (("emission", 0.0, (3,), np.float64), ("texture_index", -1, (), np.int64),
+                  ("diffuse_weight", 1.0, (), np.float64), ("principled", False, (), bool),
+                  ("metallic", 0.0, (), np.float64), ("roughness", 0.5, (), np.float64),
+                  ("ior", 1.5, (), np.float64), ("specular_level", 0.5, (), np.float64),
+                  ("specular_tint", 1.0, (3,), np.float64), ("glossy_colour", 0.0, (3,), np.float64),
+                  ("multiscatter", True, (), bool))
 
     def __post_init__(self) -> None:
         self.albedo = np.asarray(self.albedo, dtype=np.float64).reshape(-1, 3)
-        if self.emission is None:
-            self.emission = np.zeros_like(self.albedo)
-        self.emission = np.asarray(self.emission, dtype=np.float64).reshape(-1, 3)
-        if self.emission.shape != self.albedo.shape:
-            raise ValueError(f"material emission has shape {self.emission.shape}, albedo {self.albedo.shape}")
-        if self.texture_index is None:
-            self.texture_index = np.full(len(self.albedo), -1, np.int64)
-        self.texture_index = np.asarray(self.texture_index, dtype=np.int64).reshape(-1)
-        if len(self.texture_index) != len(self.albedo):
-            raise ValueError(f"{len(self.texture_index)} texture indices for {len(self.albedo)} materials")
+        rows = len(self.albedo)
+        for name, default, tail, dtype in self.PARAMETERS:
+            value = getattr(self, name)
+            if value is None:
+                value = np.full((rows,) + tail, default, dtype)
+            value = np.asarray(value, dtype=dtype)
+            if value.size != rows * int(np.prod(tail)):
+                raise ValueError(f"material {name} has {value.size} values for {rows} materials")
+            setattr(self, name, value.reshape((rows,) + tail))
 
     @classmethod
     def diffuse(cls, albedo) -> "Materials":
         return cls(np.asarray(albedo, dtype=np.float64).reshape(-1, 3))
+
+    @property
+    def glossy(self) -> np.ndarray:
+        """(M,) bool: the row has a GGX lobe (Principled, or a Glossy BSDF of non-zero colour)."""
+        return self.principled | (self.glossy_colour.max(axis=1) > 0.0)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Every per-row array by field name (for files and copies)."""
+        return {"albedo": self.albedo, **{name: getattr(self, name) for name, *_ in self.PARAMETERS}}
 
     def __len__(self) -> int:
         return len(self.albedo)
@@ -281,6 +327,13 @@ class Scene:
         if len(triangles) and (material_index.min() < 0 or material_index.max() >= len(albedo)):
             raise ValueError(f"material_index refers to materials outside 0..{len(albedo) - 1}")
         _require_finite("background colour", self.background[None])
+        materials = self.materials
+        for name in ("diffuse_weight", "metallic", "roughness", "ior", "specular_level", "specular_tint",
+                     "glossy_colour"):
+            value = getattr(materials, name)
+            _require_finite(f"material {name.replace('_', ' ')}s", value)
+            if (value < 0).any():
+                raise ValueError(f"material {name.replace('_', ' ')} must not be negative")
 
         texture_index = self.materials.texture_index
         if (texture_index >= len(self.textures)).any() or (texture_index < -1).any():
@@ -315,7 +368,10 @@ class Scene:
         lights = _validated_lights(self.lights, progress)
         if corner_uvs is not None:
             _require_finite("corner UVs", corner_uvs)
-        return Scene(triangles, material_index, Materials(albedo, emission, texture_index), lights, self.camera,
+        parameters = dict(materials.arrays(), albedo=albedo, emission=emission, texture_index=texture_index)
+        parameters["metallic"] = np.clip(parameters["metallic"], 0.0, 1.0)
+        parameters["roughness"] = np.clip(parameters["roughness"], 0.0, 1.0)
+        return Scene(triangles, material_index, Materials(**parameters), lights, self.camera,
                      self.background, shading_normals, corner_uvs, list(self.textures))
 
     # -- files ---------------------------------------------------------------------------------------
@@ -323,8 +379,9 @@ class Scene:
         """Write the scene as a .npz archive that ``Scene.load_npz`` and the command line read."""
         camera = self.camera
         arrays = dict(
-            triangles=self.triangles, material_index=self.material_index, albedo=self.materials.albedo,
-            emission=self.materials.emission,
+            triangles=self.triangles, material_index=self.material_index,
+            **{("material_" + name if name not in ("albedo", "emission", "texture_index") else name): value
+               for name, value in self.materials.arrays().items()},
             light_vertices=self.lights.vertices, light_vertex_count=self.lights.vertex_count,
             light_radiance=self.lights.radiance, light_two_sided=self.lights.two_sided,
             world_from_camera=camera.world_from_camera, resolution=np.array([camera.width, camera.height]),
@@ -335,7 +392,6 @@ class Scene:
             arrays["shading_normals"] = self.shading_normals
         if self.corner_uvs is not None:
             arrays["corner_uvs"] = self.corner_uvs
-        arrays["texture_index"] = self.materials.texture_index
         for index, texture in enumerate(self.textures):
             arrays[f"texture_{index}_texels"] = texture.texels
             arrays[f"texture_{index}_options"] = np.array([str(int(texture.srgb)), texture.interpolation,
@@ -370,7 +426,9 @@ class Scene:
             return cls(np.array(data["triangles"]), np.array(data["material_index"]),
                        Materials(np.array(data["albedo"], dtype=np.float64).reshape(-1, 3),
                                  np.array(data["emission"]) if "emission" in data else None,
-                                 np.array(data["texture_index"]) if "texture_index" in data else None),
+                                 np.array(data["texture_index"]) if "texture_index" in data else None,
+                                 **{name: np.array(data["material_" + name])
+                                    for name, *_ in Materials.PARAMETERS[2:] if "material_" + name in data}),
                        lights, camera,
                        np.array(data["background"]) if "background" in data else np.zeros(3),
                        np.array(data["shading_normals"]) if "shading_normals" in data else None,

@@ -30,6 +30,8 @@ class SurfacePoints:
     albedo : (N, 3) float64
     emission : (N, 3) float64         radiance the surface itself emits (mesh emitters).
     offset : (N,) float64             shadow-ray origin offset along the geometric normal (world units).
+    material : (N,) int64             row of ``scene.materials``, -1 where nothing is hit.
+    view : (N, 3) float64             unit direction from the point towards the camera (ω_o).
     """
 
     hit: np.ndarray
@@ -40,6 +42,8 @@ class SurfacePoints:
     albedo: np.ndarray
     emission: np.ndarray
     offset: np.ndarray
+    material: np.ndarray
+    view: np.ndarray
 
     def __len__(self) -> int:
         return len(self.hit)
@@ -47,7 +51,7 @@ class SurfacePoints:
     def take(self, index: np.ndarray) -> "SurfacePoints":
         return SurfacePoints(self.hit[index], self.position[index], self.geometric_normal[index],
                              self.shading_normal[index], self.index_triangle[index], self.albedo[index],
-                             self.emission[index], self.offset[index])
+                             self.emission[index], self.offset[index], self.material[index], self.view[index])
 
 
 def scene_extent(scene: Scene) -> float:
@@ -70,6 +74,7 @@ def shade_hits(scene: Scene, ray_origins: np.ndarray, ray_directions: np.ndarray
     shading = np.zeros((n, 3))
     albedo = np.zeros((n, 3))
     emission = np.zeros((n, 3))
+    material_row = np.full(n, -1, np.int64)
     if hit.any() and len(scene.triangles):
         corners = scene.triangles[tri[hit]]
         uh, vh = u[hit][:, None], v[hit][:, None]
@@ -92,6 +97,7 @@ def shade_hits(scene: Scene, ray_origins: np.ndarray, ray_directions: np.ndarray
         else:
             shading[hit] = normal
         material = scene.material_index[tri[hit]]
+        material_row[hit] = material
         albedo[hit] = scene.materials.albedo[material]
         emission[hit] = scene.materials.emission[material]
         texture = scene.materials.texture_index[material]
@@ -102,8 +108,10 @@ def shade_hits(scene: Scene, ray_origins: np.ndarray, ray_directions: np.ndarray
                 chosen = texture == index
                 albedo[rows[chosen]] = scene.textures[index].lookup(uv[chosen])[:, :3]
     offset = OFFSET_RELATIVE * np.abs(position).max(axis=1) + OFFSET_SCENE * extent
+    length = np.linalg.norm(ray_directions, axis=1, keepdims=True)
+    view = -ray_directions / np.maximum(length, 1e-300)
     return SurfacePoints(hit, position, geometric, shading, np.where(hit, index_triangle, -1), albedo, emission,
-                         offset)
+                         offset, material_row, view)
 
 
 def shadow_rays(surface: SurfacePoints, pixel: np.ndarray, direction: np.ndarray, pdf: np.ndarray,
