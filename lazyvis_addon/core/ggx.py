@@ -142,6 +142,66 @@ def ggx_single_scatter(wi, wo, normal, roughness) -> tuple[np.ndarray, np.ndarra
     return np.where(valid, value, 0.0), cos_hv
 
 
+def orthonormal_basis(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit tangents (N, 3) completing unit normals (N, 3) to a right-handed frame (Duff et al. 2017)."""
+    x, y, z = normal[:, 0], normal[:, 1], normal[:, 2]
+    sign = np.where(z >= 0.0, 1.0, -1.0)
+    a = -1.0 / (sign + z)
+    b = x * y * a
+    tangent = np.stack([1.0 + sign * x * x * a, sign * b, -sign * x], axis=1)
+    bitangent = np.stack([b, sign + y * y * a, -y], axis=1)
+    return tangent, bitangent
+
+
+def sample_ggx_reflection(wo, normal, roughness, u) -> tuple[np.ndarray, np.ndarray]:
+    """Directions ω_i reflected about GGX microfacet normals sampled from the visible normals (Heitz 2018).
+
+    Parameters
+    ----------
+    wo, normal : (N, 3) unit (view, shading normal; wo above the surface); roughness : (N,); u : (N, 2).
+
+    Returns
+    -------
+    wi : (N, 3) unit, possibly below the horizon (then its BSDF is 0).
+    pdf : (N,) per steradian of ω_i: G1(ω_o) D(h) / (4 cos θ_o) (``ggx_reflection_pdf``).
+    """
+    wo, normal = np.asarray(wo, dtype=np.float64), np.asarray(normal, dtype=np.float64)
+    alpha = np.maximum(alpha_from_roughness(_rows(roughness, len(wo))), 1e-4)
+    tangent, bitangent = orthonormal_basis(normal)
+    local = np.stack([_dot(wo, tangent), _dot(wo, bitangent), _dot(wo, normal)], axis=1)
+    stretched = np.stack([alpha * local[:, 0], alpha * local[:, 1], local[:, 2]], axis=1)
+    stretched /= np.linalg.norm(stretched, axis=1, keepdims=True)
+    length2 = stretched[:, 0] ** 2 + stretched[:, 1] ** 2
+    inv = np.where(length2 > 0.0, 1.0 / np.sqrt(np.maximum(length2, 1e-300)), 0.0)
+    t1 = np.where((length2 > 0.0)[:, None], np.stack([-stretched[:, 1] * inv, stretched[:, 0] * inv,
+                                                        np.zeros(len(wo))], axis=1), [1.0, 0.0, 0.0])
+    t2 = np.cross(stretched, t1)
+    radius, phi = np.sqrt(u[:, 0]), 2.0 * np.pi * u[:, 1]
+    p1, p2 = radius * np.cos(phi), radius * np.sin(phi)
+    blend = 0.5 * (1.0 + stretched[:, 2])
+    p2 = (1.0 - blend) * np.sqrt(np.maximum(1.0 - p1 * p1, 0.0)) + blend * p2
+    pz = np.sqrt(np.maximum(1.0 - p1 * p1 - p2 * p2, 0.0))
+    hemisphere = p1[:, None] * t1 + p2[:, None] * t2 + pz[:, None] * stretched
+    h_local = np.stack([alpha * hemisphere[:, 0], alpha * hemisphere[:, 1], np.maximum(hemisphere[:, 2], 0.0)],
+                       axis=1)
+    h_local /= np.maximum(np.linalg.norm(h_local, axis=1, keepdims=True), 1e-300)
+    half = h_local[:, :1] * tangent + h_local[:, 1:2] * bitangent + h_local[:, 2:] * normal
+    wi = 2.0 * _dot(wo, half)[:, None] * half - wo
+    return wi, ggx_reflection_pdf(wi, wo, normal, roughness)
+
+
+def ggx_reflection_pdf(wi, wo, normal, roughness) -> np.ndarray:
+    """Density (N,) per steradian of ``sample_ggx_reflection`` at ω_i: D(h) G1(ω_o) / (4 cos θ_o)."""
+    alpha = np.maximum(alpha_from_roughness(_rows(roughness, len(wi))), 1e-4)
+    cos_o = _dot(normal, wo)
+    half = wi + wo
+    length = np.sqrt(_dot(half, half))
+    half = half / np.maximum(length, 1e-300)[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pdf = ggx_distribution(_dot(normal, half), alpha) * ggx_g1(cos_o, alpha) / (4.0 * cos_o)
+    return np.where((cos_o > 0.0) & (length > 0.0) & (_dot(half, wo) > 0.0), pdf, 0.0)
+
+
 # ------------------------------------------------------------------------------------------------------
 # Fresnel
 # ------------------------------------------------------------------------------------------------------

@@ -20,6 +20,7 @@ from .blockers import BlockerPolygons
 from .bsdf import SurfaceBsdf
 from .geometry import (LightFrames, ReceiverLight, blocker_in_front_of_light, cone_planes, split_convex,
                        plane_lines, polygon_area_2d, projected_solid_angle, receiver_light, trim)
+from .ggx import ggx_reflection_pdf, sample_ggx_reflection
 from .ltc import ltc_shape_integral
 from .phong import phong_exponent_from_roughness, phong_polygon_integral
 from .sampling import sample_polygon_solid_angle, sample_spherical_triangle, spherical_triangle_solid_angle
@@ -308,26 +309,99 @@ def reduced_domain_mc(pieces: VisiblePieces, surface: SurfacePoints, frames: Lig
                       settings: Settings, pixel_global: np.ndarray, glossy_only: bool = False) -> np.ndarray:
     """Monte Carlo over the visible pieces (paper 3.3): ∫ f cos θ_i dω_i per couple, (Nc, 3).
 
-    Directions uniform in the solid angle of each couple's visible pieces (``settings.mc_samples`` per
-    couple, stratified); f is the whole BSDF, or only its GGX lobes with ``glossy_only`` (then only couples
-    of glossy points are sampled). Unbiased for any BSDF; the variance of a narrow lobe under a wide light
-    is high.
+    f is the whole BSDF, or only its GGX lobes with ``glossy_only`` (then only couples of glossy points are
+    sampled). ``settings.mc_samples`` directions per couple: uniform in the solid angle of the visible
+    pieces (stratified) for diffuse points; at glossy points half of them uniform and half drawn from the
+    GGX lobe (visible normals), combined by the balance heuristic (Veach 1995) so that a narrow lobe under
+    a wide light and a wide lobe under a small light are both sampled well. Unbiased for any BSDF.
     """
     n_couples = len(pieces.couple_pixel)
     samples = settings.mc_samples
-    wanted = bsdf.glossy[pieces.couple_pixel] if glossy_only else np.ones(n_couples, bool)
+    glossy_couple = bsdf.glossy[pieces.couple_pixel]
     stream = rng.STREAM_GLOSSY_MC if glossy_only else rng.STREAM_REDUCED_MC
-    couple, direction, pdf, _ = sample_visible(pieces, frames, samples, wanted, settings, pixel_global, stream)
+    lobe_samples = samples // 2 if samples > 1 else 0
+    uniform_samples = samples - lobe_samples
     weights = np.zeros((n_couples, 3))
-    if len(couple) == 0:
+
+    def evaluate(couple, direction):
+        pixel = pieces.couple_pixel[couple]
+        cosine = np.maximum(np.einsum("nk,nk->n", direction, surface.shading_normal[pixel]), 0.0)
+        f = bsdf.glossy_value(pixel, direction) if glossy_only else bsdf.value(pixel, direction)
+        return f * cosine[:, None]
+
+    def accumulate(couple, value):
+        for channel in range(3):  # colour channels
+            weights[:, channel] += np.bincount(couple, weights=value[:, channel], minlength=n_couples)
+
+    if not glossy_only:  # diffuse-only couples: every sample uniform over the visible pieces
+        couple, direction, pdf, _ = sample_visible(pieces, frames, samples, ~glossy_couple, settings, pixel_global,
+                                                   stream)
+        if len(couple):
+            accumulate(couple, evaluate(couple, direction) / (samples * np.maximum(pdf, 1e-300))[:, None]
+                       * (pdf > 0)[:, None])
+    if not glossy_couple.any():
         return weights
+    # Glossy couples: uniform samples, weighted against the lobe's density at them ...
+    couple, direction, pdf, total = sample_visible(pieces, frames, uniform_samples, glossy_couple, settings,
+                                                   pixel_global, stream)
+    if len(couple):
+        pixel = pieces.couple_pixel[couple]
+        lobe_pdf = ggx_reflection_pdf(direction, bsdf.view[pixel], bsdf.normal[pixel], bsdf.roughness[pixel])
+        mixed = uniform_samples * pdf + lobe_samples * lobe_pdf
+        accumulate(couple, evaluate(couple, direction) * np.where(pdf > 0, 1.0 / np.maximum(mixed, 1e-300), 0.0
+                                                                  )[:, None])
+    if lobe_samples == 0:
+        return weights
+    # ... and lobe samples, which count only where they land in the couple's visible pieces.
+    couple = np.repeat(np.flatnonzero(glossy_couple & (total > 0)), lobe_samples)
+    sample = np.tile(np.arange(lobe_samples), len(couple) // max(lobe_samples, 1))
     pixel = pieces.couple_pixel[couple]
-    cosine = np.maximum(np.einsum("nk,nk->n", direction, surface.shading_normal[pixel]), 0.0)
-    f = bsdf.glossy_value(pixel, direction) if glossy_only else bsdf.value(pixel, direction)
-    estimate = f * np.where(pdf > 0, cosine / np.maximum(pdf, 1e-300), 0.0)[:, None]
-    for channel in range(3):  # colour channels
-        weights[:, channel] = np.bincount(couple, weights=estimate[:, channel], minlength=n_couples) / samples
+    light = pieces.couples.light[couple]
+    u = rng.uniforms(settings.seed, settings.frame, stream, pixel_global[pixel],
+                     (len(frames) + light) * samples + sample, 2)
+    u = rng.stratified_2d(u, sample, lobe_samples)
+    direction, lobe_pdf = sample_ggx_reflection(bsdf.view[pixel], bsdf.normal[pixel], bsdf.roughness[pixel], u)
+    inside = (lobe_pdf > 0) & _lands_in_pieces(pieces, frames, couple, direction)
+    couple, direction, lobe_pdf = couple[inside], direction[inside], lobe_pdf[inside]
+    if len(couple):
+        mixed = uniform_samples / total[couple] + lobe_samples * lobe_pdf
+        accumulate(couple, evaluate(couple, direction) / mixed[:, None])
     return weights
+
+
+def _lands_in_pieces(pieces: VisiblePieces, frames: LightFrames, couple: np.ndarray, direction: np.ndarray
+                     ) -> np.ndarray:
+    """(S,) bool: the ray from couple's receiver along ``direction`` (S, 3) meets one of its visible pieces."""
+    couples = pieces.couples
+    light = couples.light[couple]
+    local = couples.local[couple]
+    along = np.stack([np.einsum("nk,nk->n", direction, frames.tangent[light]),
+                      np.einsum("nk,nk->n", direction, frames.bitangent[light]),
+                      np.einsum("nk,nk->n", direction, frames.normal[light])], axis=1)
+    # The receiver is at height local[2] above the light's plane (negative on a two-sided light's back).
+    with np.errstate(divide="ignore", invalid="ignore"):
+        distance = -local[:, 2] / along[:, 2]
+    reaches = np.isfinite(distance) & (distance > 0)
+    point = local[:, :2] + np.where(reaches, distance, 0.0)[:, None] * along[:, :2]
+    # Candidate pieces: every piece of the sample's couple (pieces sorted by couple, then expanded).
+    order = np.argsort(pieces.couple, kind="stable")
+    first = np.searchsorted(pieces.couple[order], np.arange(len(pieces.couple_pixel)))
+    per_couple = np.bincount(pieces.couple, minlength=len(pieces.couple_pixel))
+    candidates = per_couple[couple]
+    sample_of = np.repeat(np.arange(len(couple)), candidates)
+    offset = np.arange(len(sample_of)) - np.repeat(np.cumsum(candidates) - candidates, candidates)
+    piece = order[first[couple][sample_of] + offset]
+    uv, count = pieces.uv[piece], pieces.count[piece]
+    edge = np.roll(uv, -1, axis=1) - uv
+    edge[np.arange(len(piece)), count - 1] = uv[:, 0] - uv[np.arange(len(piece)), count - 1]
+    to_point = point[sample_of][:, None, :] - uv
+    cross = edge[..., 0] * to_point[..., 1] - edge[..., 1] * to_point[..., 0]
+    real = np.arange(uv.shape[1])[None, :] < count[:, None]
+    # Convex pieces of either winding: the point is inside when no real edge has it on the wrong side.
+    inside = (np.where(real, cross, 0.0) >= 0).all(axis=1) | (np.where(real, cross, 0.0) <= 0).all(axis=1)
+    landed = np.zeros(len(couple), bool)
+    landed[sample_of[inside]] = True
+    return landed & reaches
 
 
 def glossy_share(pieces: VisiblePieces, frames: LightFrames, bsdf: SurfaceBsdf, method: str) -> np.ndarray:

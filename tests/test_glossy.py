@@ -1,0 +1,209 @@
+"""Glossy surfaces in pass 2 (issue 4): the per-point BSDF, the three glossy integrators, specular shadows.
+
+The scene: a 4 x 4 m plane at z = 0 under a 1 m square light 1 m up, seen by a camera placed so that the
+mirror image of the light sits in the frame (the highlight). A thin bar between light and plane casts a
+shadow; from the highlight's points it hides part of the light as it is seen in reflection: a *specular
+shadow* in the highlight.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lazyvis_addon.core import Camera, Lights, Materials, Scene, Settings, render
+from lazyvis_addon.core.bsdf import SurfaceBsdf
+from lazyvis_addon.core.demo_scenes import box_triangles, look_at, quad_triangles, rectangle_light
+from lazyvis_addon.core.ggx import principled_bsdf
+from lazyvis_addon.core.surface import SurfacePoints
+
+CENTRES = Settings(aa_samples=1)
+EYE = np.array([0.0, -2.2, 1.6])
+
+
+def glossy_plane(materials: Materials, resolution: int = 40, bar: bool = True) -> Scene:
+    """The plane (material 0) under the light; the bar (material 1, diffuse) when ``bar``."""
+    triangles = [quad_triangles([(-2, -2, 0), (2, -2, 0), (2, 2, 0), (-2, 2, 0)])]
+    material_index = [0, 0]
+    if bar:
+        triangles.append(box_triangles((0.0, 0.3, 0.55), (1.6, 0.12, 0.05)))
+        material_index += [1] * 12
+    lights = Lights.from_polygons([rectangle_light((0.0, 0.6, 1.0), 1.0, 1.0)], [(2.0, 2.0, 2.0)])
+    camera = Camera.perspective(look_at(EYE, (0.0, 0.6, 0.0)), resolution, resolution, np.radians(50.0))
+    return Scene(np.concatenate(triangles), np.array(material_index), materials, lights, camera)
+
+
+def principled(roughness: float, metallic: float = 0.0, base=(0.5, 0.5, 0.5)) -> Materials:
+    return Materials(np.array([base, (0.5, 0.5, 0.5)]), principled=np.array([True, False]),
+                     roughness=np.array([roughness, 0.5]), metallic=np.array([metallic, 0.0]))
+
+
+def glossy_only(roughness: float, colour=(1.0, 1.0, 1.0)) -> Materials:
+    return Materials(np.array([(0.0, 0.0, 0.0), (0.5, 0.5, 0.5)]), diffuse_weight=np.array([0.0, 1.0]),
+                     glossy_colour=np.array([colour, (0.0, 0.0, 0.0)]), roughness=np.array([roughness, 0.5]))
+
+
+def points(n: int, rng, materials: Materials, row: int = 0) -> SurfacePoints:
+    """n points at the origin with normal +z and random views above the horizon."""
+    view = rng.normal(size=(n, 3))
+    view[:, 2] = np.abs(view[:, 2]) + 0.3
+    view /= np.linalg.norm(view, axis=1, keepdims=True)
+    normal = np.tile([0.0, 0.0, 1.0], (n, 1))
+    return SurfacePoints(np.ones(n, bool), np.zeros((n, 3)), normal, normal, np.zeros(n, np.int64),
+                         np.tile(materials.albedo[row], (n, 1)), np.zeros((n, 3)), np.zeros(n),
+                         np.full(n, row, np.int64), view)
+
+
+def cosine_hemisphere(n: int, rng) -> np.ndarray:
+    u = rng.uniform(size=(n, 2))
+    r, phi = np.sqrt(u[:, 0]), 2.0 * np.pi * u[:, 1]
+    return np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(1.0 - u[:, 0])], axis=1)
+
+
+# -- the per-point BSDF ----------------------------------------------------------------------------------
+
+def test_bsdf_value_is_cycles_principled(np_rng):
+    """SurfaceBsdf.value of a Principled row equals ggx.principled_bsdf (Cycles' closures) with its inputs."""
+    materials = Materials(np.array([(0.8, 0.3, 0.1)]), principled=np.array([True]), metallic=np.array([0.4]),
+                          roughness=np.array([0.35]), ior=np.array([1.6]), specular_level=np.array([0.7]),
+                          specular_tint=np.array([(1.0, 0.8, 0.9)]))
+    surface = points(500, np_rng, materials)
+    bsdf = SurfaceBsdf.of(surface, materials)
+    wi = cosine_hemisphere(500, np_rng)
+    rows = np.arange(500)
+    expected = principled_bsdf(wi, surface.view, surface.shading_normal, 0.35, (0.8, 0.3, 0.1), 0.4, 1.6, 0.7,
+                               (1.0, 0.8, 0.9))
+    np.testing.assert_allclose(bsdf.value(rows, wi), expected, rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize("materials", [principled(0.3, metallic=0.0), principled(0.5, metallic=1.0, base=(0.9, 0.6, 0.2)),
+                                       glossy_only(0.2, colour=(0.8, 0.9, 1.0))], ids=["dielectric", "metal", "glossy"])
+def test_glossy_scale_is_the_lobes_hemispherical_integral(materials, np_rng):
+    """glossy_scale (what the LTC and Phong shares multiply) = ∫ f_glossy cos θ_i over the hemisphere,
+    estimated with 200k cosine-distributed directions per view (4 views): the magnitudes, the Fresnel
+    models, the multiscatter factor and the layering are consistent with the BSDF the MC integrator uses."""
+    n_views, n_dirs = 4, 200_000
+    surface = points(n_views, np_rng, materials)
+    bsdf = SurfaceBsdf.of(surface, materials)
+    for view in range(n_views):
+        wi = cosine_hemisphere(n_dirs, np_rng)
+        f = bsdf.glossy_value(np.full(n_dirs, view), wi)
+        estimate = np.pi * f.mean(axis=0)  # ∫ f cos = π E[f] under the cosine pdf cos/π
+        stderr = np.pi * f.std(axis=0) / np.sqrt(n_dirs)
+        assert np.all(np.abs(estimate - bsdf.glossy_scale[view]) < 5 * stderr + 2e-3 * bsdf.glossy_scale[view])
+
+
+def test_principled_diffuse_is_darkened_by_the_coat_and_metal_has_none(np_rng):
+    dielectric, metal = principled(0.3), principled(0.3, metallic=1.0)
+    surface = points(8, np_rng, dielectric)
+    coated = SurfaceBsdf.of(surface, dielectric).diffuse
+    assert np.all(coated < 0.5) and np.all(coated > 0.5 * 0.85)  # F0 = 4% plus the lobe's grazing rise
+    assert np.all(SurfaceBsdf.of(surface, metal).diffuse == 0.0)
+    plain = Materials(np.array([(0.5, 0.5, 0.5)]))
+    np.testing.assert_array_equal(SurfaceBsdf.of(surface, plain).diffuse, 0.5)
+    assert not SurfaceBsdf.of(surface, plain).glossy.any()
+
+
+# -- rendering: the three glossy integrators -------------------------------------------------------------
+
+def highlight(image: np.ndarray) -> np.ndarray:
+    """Pixels of the reflected light's highlight: the brightest tenth."""
+    value = image.sum(axis=2)
+    return value > np.quantile(value, 0.9)
+
+
+@pytest.mark.parametrize("roughness", [0.3, 0.5])
+def test_glossy_mc_converges_to_the_same_bsdf_as_standard_mc(roughness):
+    """Reduced-domain MC over the visible pieces and standard MC (Embree shadow rays over the whole light)
+    estimate the same integral of the same BSDF by independent routes: their difference is noise."""
+    scene = glossy_plane(principled(roughness))
+    reduced = render(scene, CENTRES.replace(integrator="reduced_mc", mc_samples=64)).combined[..., :3]
+    standard = render(scene, CENTRES.replace(integrator="standard_mc", mc_samples=64)).combined[..., :3]
+    lit = reduced.sum(axis=2) > 0
+    diff = (reduced - standard)[lit]
+    assert abs(diff.mean()) < 4 * diff.std() / np.sqrt(diff.size)
+    assert reduced[highlight(reduced)].mean() > 2.0 * reduced[lit].mean()  # there is a highlight
+
+
+@pytest.mark.parametrize("roughness, tolerance", [(0.3, 0.03), (0.5, 0.04), (0.8, 0.06)])
+def test_ltc_and_phong_against_glossy_mc(roughness, tolerance):
+    """Analytic glossy integrals against the unbiased MC over the same visible pieces, on a pure Glossy
+    BSDF plane (the whole image is the lobe). LTC: mean absolute error within ``tolerance`` of the mean
+    highlight (measured 1.3%, 2.2%, 4.8%: view angles here are 35-60°, where tests/test_ltc.py measures a few
+    percent of the lobe's albedo). Phong mode renders the paper's Phong lobe with a peak-matched exponent, a
+    different BRDF from Cycles' GGX: measured 22%, 29% and 13% off, so it is only held to 35%."""
+    scene = glossy_plane(glossy_only(roughness))
+    mc = render(scene, CENTRES.replace(glossy_integrator="mc", mc_samples=1024)).combined[..., :3]
+    ltc = render(scene, CENTRES.replace(glossy_integrator="ltc")).combined[..., :3]
+    phong = render(scene, CENTRES.replace(glossy_integrator="phong")).combined[..., :3]
+    bright = highlight(mc)
+    scale = mc[bright].mean()
+    ltc_error = np.abs(ltc - mc)[bright].mean() / scale
+    phong_error = np.abs(phong - mc)[bright].mean() / scale
+    print(f"roughness {roughness}: LTC {100 * ltc_error:.1f}%, Phong {100 * phong_error:.1f}% of the highlight")
+    assert ltc_error < tolerance
+    assert phong_error < 0.35
+
+
+def test_specular_shadow_appears_in_the_highlight():
+    """The bar hides part of the light as the highlight's points see it in reflection. On a pure Glossy
+    plane the highlight's pixels darken where the bar's reflection falls, by what MC over the visible
+    pieces gives; without the bar the highlight is whole."""
+    settings = CENTRES.replace(glossy_integrator="ltc")
+    open_ = render(glossy_plane(glossy_only(0.2), bar=False), settings).combined[..., :3]
+    shadowed = render(glossy_plane(glossy_only(0.2)), settings).combined[..., :3]
+    mc = render(glossy_plane(glossy_only(0.2)), settings.replace(glossy_integrator="mc", mc_samples=512)
+                ).combined[..., :3]
+    bright = highlight(open_)
+    darkened = bright & (shadowed.sum(axis=2) < 0.5 * open_.sum(axis=2))
+    assert darkened.sum() >= 10, "no specular shadow inside the highlight"
+    assert (bright & (shadowed.sum(axis=2) > 0.9 * open_.sum(axis=2))).sum() >= 10, "the whole highlight went"
+    # The analytic value follows MC on average over the highlight and over its shadowed part (the lobe's
+    # shape is LTC's, the visibility exact). Per pixel, 512 uniform samples of a roughness-0.2 lobe are
+    # noisier (about 10%) than LTC's error, so only the means are compared (measured bias: -0.8%).
+    scale = open_[bright].mean()
+    for region in (bright, darkened):
+        assert abs((shadowed - mc)[region].mean()) < 0.03 * scale
+
+
+def test_diffuse_scene_is_unchanged_by_the_glossy_integrator():
+    """A scene without glossy rows renders identically whatever the glossy integrator (it is never called)."""
+    scene = glossy_plane(Materials.diffuse([(0.5, 0.5, 0.5), (0.5, 0.5, 0.5)]))
+    images = [render(scene, CENTRES.replace(glossy_integrator=g)).combined for g in ("ltc", "phong", "mc")]
+    np.testing.assert_array_equal(images[0], images[1])
+    np.testing.assert_array_equal(images[0], images[2])
+
+
+def test_metal_highlight_takes_the_base_colour():
+    """A metal's reflection is tinted by its base colour (F0); a dielectric's is white (F0 from the IOR)."""
+    metal = render(glossy_plane(principled(0.3, metallic=1.0, base=(0.9, 0.5, 0.1)), bar=False), CENTRES)
+    dielectric = render(glossy_plane(principled(0.3, base=(0.0, 0.0, 0.0)), bar=False), CENTRES)
+    bright = highlight(metal.combined[..., :3])
+    red, green, blue = (metal.combined[..., c][bright].mean() for c in range(3))
+    assert red > green > blue > 0
+    d = dielectric.combined[..., :3][bright].mean(axis=0)
+    np.testing.assert_allclose(d / d.mean(), 1.0, rtol=1e-6)
+
+
+@pytest.mark.parametrize("roughness", [0.05, 0.3, 0.8])
+@pytest.mark.parametrize("view_degrees", [0, 45, 80])
+def test_lobe_sampler_density_matches_its_samples(roughness, view_degrees, np_rng):
+    """The GGX visible-normal sampler and its pdf agree: E[g(ω_i) / pdf(ω_i)] = ∫ g over the hemisphere for
+    g = cos θ_i (π) and g = cos θ_i · [ω_i in a cone about the normal] (closed form), to within 5 standard
+    errors; a pdf off by a constant or in shape would fail one of them."""
+    from lazyvis_addon.core.ggx import ggx_reflection_pdf, sample_ggx_reflection
+
+    n = 400_000
+    theta = np.radians(view_degrees)
+    wo = np.tile([np.sin(theta), 0.0, np.cos(theta)], (n, 1))
+    normal = np.tile([0.0, 0.0, 1.0], (n, 1))
+    wi, pdf = sample_ggx_reflection(wo, normal, roughness, np_rng.uniform(size=(n, 2)))
+    np.testing.assert_allclose(np.linalg.norm(wi, axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(ggx_reflection_pdf(wi, wo, normal, roughness), pdf, rtol=1e-9)
+    cos_i = wi[:, 2]
+    above = (cos_i > 0) & (pdf > 0)
+    for cone_cos in (-1.0, np.cos(np.radians(30.0))):  # whole hemisphere, then a 30° cone
+        g = np.where(above & (cos_i > cone_cos), cos_i, 0.0) / np.where(above, pdf, 1.0)
+        exact = np.pi * (1.0 - max(cone_cos, 0.0) ** 2)  # ∫ cos over a cone of half-angle θc: π sin²θc
+        estimate, stderr = g.mean(), g.std() / np.sqrt(n)
+        assert abs(estimate - exact) < 5 * stderr + 1e-9, (estimate, exact, stderr)
