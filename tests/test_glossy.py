@@ -207,3 +207,20 @@ def test_lobe_sampler_density_matches_its_samples(roughness, view_degrees, np_rn
         exact = np.pi * (1.0 - max(cone_cos, 0.0) ** 2)  # ∫ cos over a cone of half-angle θc: π sin²θc
         estimate, stderr = g.mean(), g.std() / np.sqrt(n)
         assert abs(estimate - exact) < 5 * stderr + 1e-9, (estimate, exact, stderr)
+
+
+def test_mirror_smooth_surface_reflects_the_light_exactly():
+    """Roughness 0 is a mirror (Cycles' singular lobe): a pixel shows the light's radiance times the lobe's
+    albedo where the mirror ray meets the visible light, nothing elsewhere, with every glossy integrator;
+    and the bar's reflection cuts the mirror image of the light, pixel-exactly."""
+    scene = glossy_plane(glossy_only(0.0), bar=False)
+    out = render(scene, CENTRES).combined[..., :3]
+    lit = out[..., 0] > 0
+    assert 20 < lit.sum() < 0.5 * lit.size  # the light's mirror image, not the whole plane
+    np.testing.assert_allclose(out[lit], 2.0, rtol=1e-6)  # white Glossy BSDF at roughness 0: albedo 1
+    for integrator in ("phong", "mc"):
+        np.testing.assert_array_equal(render(scene, CENTRES.replace(glossy_integrator=integrator)).combined,
+                                      render(scene, CENTRES).combined)
+    barred = render(glossy_plane(glossy_only(0.0)), CENTRES).combined[..., :3]
+    mirrored = np.isclose(barred[..., 0], 2.0, rtol=1e-6)  # the bar itself is diffuse and far darker
+    assert 0 < mirrored.sum() < lit.sum() and not (mirrored & ~lit).any()

@@ -20,7 +20,7 @@ from .blockers import BlockerPolygons
 from .bsdf import SurfaceBsdf
 from .geometry import (LightFrames, ReceiverLight, blocker_in_front_of_light, cone_planes, split_convex,
                        plane_lines, polygon_area_2d, projected_solid_angle, receiver_light, trim)
-from .ggx import ggx_reflection_pdf, sample_ggx_reflection
+from .ggx import ROUGHNESS_SQ_THRESHOLD, alpha_from_roughness, ggx_reflection_pdf, sample_ggx_reflection
 from .ltc import ltc_shape_integral
 from .phong import phong_exponent_from_roughness, phong_polygon_integral
 from .sampling import sample_polygon_solid_angle, sample_spherical_triangle, spherical_triangle_solid_angle
@@ -29,6 +29,7 @@ from .surface import SurfacePoints, shadow_rays
 
 # Pieces smaller than this fraction of their light's area are dropped: slivers from shared blocker edges.
 SLIVER_FRACTION = 1e-10
+PHONG_MAX_EXPONENT = 2000.0
 
 
 @dataclass
@@ -415,7 +416,8 @@ def glossy_share(pieces: VisiblePieces, frames: LightFrames, bsdf: SurfaceBsdf, 
     n_couples = len(pieces.couple_pixel)
     share = np.zeros(n_couples)
     piece_pixel = pieces.couple_pixel[pieces.couple]
-    lobed = np.flatnonzero(bsdf.glossy[piece_pixel])
+    rough = alpha_from_roughness(bsdf.roughness[piece_pixel]) ** 2 > ROUGHNESS_SQ_THRESHOLD  # mirrors: elsewhere
+    lobed = np.flatnonzero(bsdf.glossy[piece_pixel] & rough)
     if len(lobed) == 0:
         return share
     couple = pieces.couple[lobed]
@@ -425,8 +427,10 @@ def glossy_share(pieces: VisiblePieces, frames: LightFrames, bsdf: SurfaceBsdf, 
     if method == "ltc":
         per_piece = ltc_shape_integral(directions, normal, view, roughness, pieces.count[lobed])
     elif method == "phong":
-        per_piece = phong_polygon_integral(directions, normal, view, phong_exponent_from_roughness(roughness),
-                                           pieces.count[lobed])
+        # The moments' recurrence costs one step per exponent unit: narrower lobes than n = 2000 (roughness
+        # below 0.126) are integrated at n = 2000.
+        exponent = np.minimum(phong_exponent_from_roughness(roughness), PHONG_MAX_EXPONENT)
+        per_piece = phong_polygon_integral(directions, normal, view, exponent, pieces.count[lobed])
     else:
         raise ValueError(f"unknown glossy integral {method!r}")
     return np.bincount(couple, weights=per_piece, minlength=n_couples)
@@ -439,16 +443,36 @@ def couple_weights(pieces: VisiblePieces, surface: SurfacePoints, frames: LightF
     ``settings.integrator`` "reduced_mc" samples the whole BSDF; otherwise the diffuse lobe is exact
     (Lambert's formula) and the GGX lobes follow ``settings.glossy_integrator``.
     """
+    mirror = mirror_weights(pieces, frames, bsdf) if bsdf.glossy.any() else 0.0
     if settings.integrator == "reduced_mc":
-        return reduced_domain_mc(pieces, surface, frames, bsdf, settings, pixel_global)
+        return reduced_domain_mc(pieces, surface, frames, bsdf, settings, pixel_global) + mirror
     projected = analytic(pieces, surface, frames)
-    weights = projected[:, None] * bsdf.diffuse[pieces.couple_pixel] / np.pi
+    weights = projected[:, None] * bsdf.diffuse[pieces.couple_pixel] / np.pi + mirror
     if not bsdf.glossy.any():
         return weights
     if settings.glossy_integrator == "mc":
         return weights + reduced_domain_mc(pieces, surface, frames, bsdf, settings, pixel_global, glossy_only=True)
     share = glossy_share(pieces, frames, bsdf, settings.glossy_integrator)
     return weights + share[:, None] * bsdf.glossy_scale[pieces.couple_pixel]
+
+
+def mirror_weights(pieces: VisiblePieces, frames: LightFrames, bsdf: SurfaceBsdf) -> np.ndarray:
+    """The GGX lobes of mirror-smooth points (α² at or below Cycles' threshold, roughness < 0.004), (Nc, 3).
+
+    Cycles treats such a lobe as a perfect mirror: the light is seen in the mirror direction, with the
+    lobe's Fresnel-weighted albedo, when that direction meets the couple's visible pieces. The other glossy
+    integrators give 0 for them (a delta cannot be integrated or sampled over an area).
+    """
+    weights = np.zeros((len(pieces.couple_pixel), 3))
+    pixel = pieces.couple_pixel
+    smooth = bsdf.glossy[pixel] & (alpha_from_roughness(bsdf.roughness[pixel]) ** 2 <= ROUGHNESS_SQ_THRESHOLD)
+    couple = np.flatnonzero(smooth)
+    if len(couple):
+        view, normal = bsdf.view[pixel[couple]], bsdf.normal[pixel[couple]]
+        mirrored = 2.0 * np.einsum("nk,nk->n", view, normal)[:, None] * normal - view
+        seen = _lands_in_pieces(pieces, frames, couple, mirrored)
+        weights[couple[seen]] = bsdf.glossy_scale[pixel[couple[seen]]]
+    return weights
 
 
 def verify_visible(pieces: VisiblePieces, surface: SurfacePoints, frames: LightFrames, polygons: BlockerPolygons,
