@@ -1,7 +1,8 @@
 """Build the sample .blend files of LazyVis with bpy (Blender as a Python module).
 
-    .venv/bin/python sample_blends/make_samples.py                    # all three, into sample_blends/
+    .venv/bin/python sample_blends/make_samples.py                    # all of them, into sample_blends/
     .venv/bin/python sample_blends/make_samples.py suzanne --output-dir /tmp
+    .venv/bin/python sample_blends/make_samples.py glossy textured    # only these two
 
 - ``floating_boxes.blend``: the paper's Fig. 7 set-up: 49 boxes floating over a ground plane before a
   back wall, four coloured area lights of different shapes and sizes (rectangle, square, thin rectangle,
@@ -11,12 +12,17 @@
   about 40,000 triangles after evaluation.
 - ``suzanne.blend``: Suzanne, smooth shaded with a level-1 subdivision surface, on a floor under a DISK
   and an ELLIPSE area light; her Shadow Terminator Geometry Offset is 0 (LazyVis does not implement it).
+- ``glossy.blend``: the floating boxes before a glossy back wall (Principled, roughness 0.3, base 0.8 grey)
+  on a glossy floor (Principled, roughness 0.4); among the diffuse boxes a few metallic (Principled,
+  metallic 1), Glossy BSDF and Mix (Diffuse + Glossy) ones; two area lights (issue 4).
+- ``textured.blend``: a checker-textured floor (Image Texture of a 64 x 64 checker image packed into the
+  file, Closest interpolation, sRGB) lit by one area light through five thin slats (issue 5).
 
-Every file: Diffuse BSDF materials only (Cycles' default Principled BSDF adds a specular lobe LazyVis does
-not render), a black world, area lights hidden from the camera (Cycles' default), 512 x 512 (chapel
+Every file: a black world, area lights hidden from the camera (Cycles' default), 512 x 512 (chapel
 640 x 480) at 100%, frame range 1-1, render engine LAZYVIS, and Cycles already set up as the project's
 direct-light reference (tools/make_cycles_reference.py) so that switching the engine to Cycles gives the
-image LazyVis should match. Geometry comes from a fixed seed: running the script twice gives the same
+image LazyVis should match. The first three use Diffuse BSDF materials only (exact against Cycles); the
+glossy one Principled, Glossy and Mix shaders. Geometry comes from a fixed seed: running the script twice gives the same
 scenes. Files are saved compressed (each about 100 KB).
 
 Rebuilding changes the files' bytes even when the scenes are the same (Blender stores memory addresses
@@ -35,7 +41,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 
-SAMPLES = ("floating_boxes", "chapel", "suzanne")
+SAMPLES = ("floating_boxes", "chapel", "suzanne", "glossy", "textured")
 
 
 # -- building blocks (bpy imported by main before any of these run) ------------------------------------------
@@ -90,6 +96,59 @@ def diffuse(name: str, color) -> "bpy.types.Material":
     node.inputs["Color"].default_value = (*color, 1.0)
     tree.links.new(node.outputs["BSDF"], output.inputs["Surface"])
     material.diffuse_color = (*color, 1.0)
+    return material
+
+
+def principled(name: str, color, roughness: float, metallic: float = 0.0) -> "bpy.types.Material":
+    """A material whose surface is one Principled BSDF (Multiscatter GGX, Cycles' default)."""
+    material = _shader_material(name, "ShaderNodeBsdfPrincipled", color)
+    node = next(n for n in material.node_tree.nodes if n.bl_idname == "ShaderNodeBsdfPrincipled")
+    node.inputs["Base Color"].default_value = (*color, 1.0)
+    node.inputs["Roughness"].default_value = roughness
+    node.inputs["Metallic"].default_value = metallic
+    return material
+
+
+def glossy(name: str, color, roughness: float) -> "bpy.types.Material":
+    """A material whose surface is one Glossy BSDF (GGX)."""
+    material = _shader_material(name, "ShaderNodeBsdfGlossy", color)
+    node = next(n for n in material.node_tree.nodes if n.bl_idname == "ShaderNodeBsdfAnisotropic")
+    node.inputs["Color"].default_value = (*color, 1.0)
+    node.inputs["Roughness"].default_value = roughness
+    node.distribution = "GGX"
+    return material
+
+
+def diffuse_glossy_mix(name: str, color, glossy_color, roughness: float, fac: float) -> "bpy.types.Material":
+    """A Mix Shader of a Diffuse BSDF (weight 1 - fac) and a Glossy BSDF (weight fac)."""
+    material = _shader_material(name, "ShaderNodeMixShader", color)
+    tree = material.node_tree
+    mix = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeMixShader")
+    mix.inputs[0].default_value = fac
+    base, shine = tree.nodes.new("ShaderNodeBsdfDiffuse"), tree.nodes.new("ShaderNodeBsdfGlossy")
+    base.inputs["Color"].default_value = (*color, 1.0)
+    shine.inputs["Color"].default_value = (*glossy_color, 1.0)
+    shine.inputs["Roughness"].default_value = roughness
+    base.location = (mix.location.x - 250, mix.location.y + 150)
+    shine.location = (mix.location.x - 250, mix.location.y - 150)
+    tree.links.new(base.outputs["BSDF"], mix.inputs[1])
+    tree.links.new(shine.outputs["BSDF"], mix.inputs[2])
+    return material
+
+
+def _shader_material(name: str, shader: str, viewport_color) -> "bpy.types.Material":
+    """A material whose output is fed by one new ``shader`` node (its inputs left at their defaults)."""
+    import bpy
+
+    material = bpy.data.materials.new(name)
+    tree = material.node_tree if material.node_tree is not None else _material_nodes(material)
+    output = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial")
+    for node in [n for n in tree.nodes if n != output]:
+        tree.nodes.remove(node)
+    node = tree.nodes.new(shader)
+    node.location = (output.location.x - 250, output.location.y)
+    tree.links.new(node.outputs[0], output.inputs["Surface"])
+    material.diffuse_color = (*viewport_color, 1.0)
     return material
 
 
@@ -184,15 +243,33 @@ def save(path: Path) -> None:
 def build_floating_boxes() -> None:
     """49 boxes in a jittered 7 x 7 grid, 0.5-2 m above a 12 x 12 m ground, a 6 m back wall, 4 lights."""
     new_scene(512, 512)
-    rng = random.Random(7)
     ground = diffuse("Ground", (0.8, 0.8, 0.8))
     wall = diffuse("Wall", (0.75, 0.72, 0.68))
-    palette = [diffuse(name, color) for name, color in (
+    _boxes_before_a_wall(ground, wall, _box_palette())
+    add_area_light("Warm Rectangle", (-2.0, -1.5, 4.5), (-1.6, -1.2, 0.0), "RECTANGLE", 1.6, 1.0,
+                   color=(1.0, 0.83, 0.67), radiance=15.0)
+    add_area_light("Blue Square", (2.5, 1.5, 5.0), (2.2, 1.0, 0.0), "SQUARE", 0.8,
+                   color=(0.45, 0.68, 1.0), radiance=22.0)
+    add_area_light("Red Strip", (0.5, -3.0, 3.8), (0.5, -2.0, 0.0), "RECTANGLE", 2.4, 0.5,
+                   color=(1.0, 0.48, 0.4), radiance=12.5)
+    add_area_light("Green Disk", (-1.5, 3.0, 4.2), (-1.2, 2.5, 0.0), "DISK", 1.0,
+                   color=(0.6, 1.0, 0.6), radiance=12.5)
+    add_camera("Camera", (0.0, -11.0, 7.5), (0.0, 0.0, 0.8), 50.0)
+
+
+def _box_palette() -> list:
+    return [diffuse(name, color) for name, color in (
         ("Red", (0.8, 0.3, 0.2)), ("Green", (0.2, 0.7, 0.3)), ("Blue", (0.25, 0.35, 0.8)),
         ("Yellow", (0.8, 0.75, 0.3)), ("Grey", (0.7, 0.7, 0.7)))]
+
+
+def _boxes_before_a_wall(ground, wall, palette) -> None:
+    """The floating-boxes layout: a 12 x 12 m ground, a 6 m back wall and 49 boxes (seed 7), box i with
+    ``palette[i % len(palette)]``."""
+    rng = random.Random(7)
     add_object("Ground", box_mesh("Ground", [((0.0, 0.0, -0.05), (12.0, 12.0, 0.1))]), ground)
     add_object("Back Wall", box_mesh("Back Wall", [((0.0, 6.05, 3.0), (12.0, 0.1, 6.0))]), wall)
-    # One unit cube per colour, shared by the boxes of that colour (linked duplicates: a small file).
+    # One unit cube per material, shared by the boxes of that material (linked duplicates: a small file).
     cubes = [box_mesh(f"Box {m.name}", [((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))]) for m in palette]
     for cube, material in zip(cubes, palette):
         cube.materials.append(material)
@@ -204,15 +281,73 @@ def build_floating_boxes() -> None:
         size = tuple(rng.uniform(0.25, 0.6) for _ in range(3))
         add_object(f"Box {index:02d}", cubes[index % len(cubes)], location=centre,
                    rotation=(0.0, 0.0, rng.uniform(0.0, math.pi)), scale=size)
-    add_area_light("Warm Rectangle", (-2.0, -1.5, 4.5), (-1.6, -1.2, 0.0), "RECTANGLE", 1.6, 1.0,
-                   color=(1.0, 0.83, 0.67), radiance=15.0)
-    add_area_light("Blue Square", (2.5, 1.5, 5.0), (2.2, 1.0, 0.0), "SQUARE", 0.8,
-                   color=(0.45, 0.68, 1.0), radiance=22.0)
-    add_area_light("Red Strip", (0.5, -3.0, 3.8), (0.5, -2.0, 0.0), "RECTANGLE", 2.4, 0.5,
-                   color=(1.0, 0.48, 0.4), radiance=12.5)
-    add_area_light("Green Disk", (-1.5, 3.0, 4.2), (-1.2, 2.5, 0.0), "DISK", 1.0,
-                   color=(0.6, 1.0, 0.6), radiance=12.5)
+
+
+def build_glossy() -> None:
+    """The floating boxes before a glossy wall on a glossy floor, some boxes metallic or glossy, 2 lights."""
+    new_scene(512, 512)
+    floor = principled("Glossy Floor", (0.5, 0.5, 0.5), roughness=0.4)
+    wall = principled("Glossy Wall", (0.8, 0.8, 0.8), roughness=0.3)
+    palette = _box_palette() + [principled("Gold", (1.0, 0.77, 0.34), roughness=0.25, metallic=1.0),
+                                glossy("Mirror", (0.9, 0.9, 0.9), roughness=0.15),
+                                diffuse_glossy_mix("Varnished Red", (0.7, 0.15, 0.1), (1.0, 1.0, 1.0),
+                                                   roughness=0.2, fac=0.3)]
+    _boxes_before_a_wall(floor, wall, palette)
+    add_area_light("Warm Rectangle", (-2.5, -2.0, 4.5), (-1.0, 1.0, 0.0), "RECTANGLE", 2.0, 1.0,
+                   color=(1.0, 0.85, 0.7), radiance=15.0)
+    add_area_light("Cool Square", (3.0, 0.5, 5.0), (1.5, 3.0, 0.5), "SQUARE", 1.0,
+                   color=(0.6, 0.75, 1.0), radiance=20.0)
     add_camera("Camera", (0.0, -11.0, 7.5), (0.0, 0.0, 0.8), 50.0)
+
+
+def checker_image(name: str, size: int = 64, squares: int = 8, dark=0.15, light=0.85) -> "bpy.types.Image":
+    """A ``size`` x ``size`` sRGB checker of ``squares`` x ``squares`` squares, packed into the .blend."""
+    import bpy
+    import numpy as np
+
+    image = bpy.data.images.new(name, size, size, alpha=False)
+    image.colorspace_settings.name = "sRGB"  # before the pixels: a new colour space regenerates the image
+    cell = (np.arange(size) * squares // size) % 2
+    value = np.where(cell[:, None] ^ cell[None, :], light, dark).astype(np.float32)
+    pixels = np.ones((size, size, 4), np.float32)
+    pixels[..., :3] = value[..., None]
+    image.pixels.foreach_set(pixels.ravel())
+    image.pack()
+    return image
+
+
+def build_textured() -> None:
+    """An 8 x 8 m checker floor (UVs repeating twice) lit by one narrow area light through five slats."""
+    import bpy
+    import numpy as np
+
+    new_scene(512, 512)
+    floor_material = diffuse("Checker Floor", (0.5, 0.5, 0.5))
+    tree = floor_material.node_tree
+    texture = tree.nodes.new("ShaderNodeTexImage")
+    texture.image = checker_image("Checker")
+    texture.interpolation = "Closest"
+    texture.extension = "REPEAT"
+    texture.location = (-600, 0)
+    shader = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeBsdfDiffuse")
+    tree.links.new(texture.outputs["Color"], shader.inputs["Color"])
+
+    bpy.ops.mesh.primitive_plane_add(size=8.0)
+    floor = bpy.context.object
+    floor.name = floor.data.name = "Floor"
+    floor.data.materials.append(floor_material)
+    uv = floor.data.uv_layers[0].uv
+    coordinates = np.empty(len(uv) * 2, np.float32)
+    uv.foreach_get("vector", coordinates)
+    uv.foreach_set("vector", 2.0 * coordinates)  # the checker twice across: 16 squares of 0.5 m
+
+    # Slats along x, 1.2 m up; the light is long along them and narrow across, so the stripes of shadow
+    # have penumbrae of about 0.1 m (0.25 m x 1.2 m / 2.8 m) between them.
+    slats = [((0.0, -1.2 + 0.6 * i, 1.2), (3.0, 0.25, 0.06)) for i in range(5)]
+    add_object("Slats", box_mesh("Slats", slats), diffuse("Slat Wood", (0.45, 0.3, 0.18)))
+    add_area_light("Light", (0.4, -0.8, 4.0), (0.0, 0.0, 0.0), "RECTANGLE", 1.2, 0.25,
+                   color=(1.0, 0.95, 0.85), radiance=120.0)
+    add_camera("Camera", (0.0, -7.5, 5.5), (0.0, 0.2, 0.5), 50.0)
 
 
 def build_chapel() -> None:
@@ -330,7 +465,8 @@ def build_suzanne() -> None:
     scene.lazyvis.disk_vertices = 64
 
 
-BUILDERS = {"floating_boxes": build_floating_boxes, "chapel": build_chapel, "suzanne": build_suzanne}
+BUILDERS = {"floating_boxes": build_floating_boxes, "chapel": build_chapel, "suzanne": build_suzanne,
+            "glossy": build_glossy, "textured": build_textured}
 
 
 def main(argv: list[str]) -> int:

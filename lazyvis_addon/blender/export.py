@@ -12,17 +12,28 @@ Measured on Blender 5.0.1 (see tests/blender/test_export.py):
 - A render depsgraph leaves out objects with ``hide_render``; a viewport depsgraph (tests) does not, so
   ``hide_render`` is also checked here.
 - ``Camera.view_frame`` matches ``screen_window`` below for every sensor fit, shift and pixel aspect.
+- Materials: the Glossy BSDF's ``bl_idname`` is ``ShaderNodeBsdfAnisotropic`` (``nodes.new("ShaderNodeBsdfGlossy")``
+  makes one), distributions BECKMANN, GGX, ASHIKHMIN_SHIRLEY, MULTI_GGX; the Principled BSDF's are GGX and
+  MULTI_GGX. The Mix Shader's inputs are (Factor, Shader, Shader): Cycles weighs the first shader by
+  1 - fac and the second by fac, fac clamped to [0, 1] (``svm_node_mix_closure``).
+- UVs: ``loop_triangles.foreach_get("loops")`` gives the face corner of each triangle corner, in the order of
+  its ``vertices``; ``uv_layers[name].uv.foreach_get("vector")`` the UV per face corner (``.data`` with "uv"
+  gives the same numbers). Evaluated meshes keep their UV maps' names and ``active_render`` flags.
+- Images: ``image.pixels`` is bottom row first; byte images read as exactly byte / 255. A file image loads
+  when its ``size`` is read (``has_data`` turns True); a missing file leaves size (0, 0) and ``has_data``
+  False. Setting a generated image's colour space regenerates (blanks) its pixels.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from ..core.progress import Progress
 from ..core.scene import Camera, Lights, Materials, Scene
+from ..core.texture import EXTENSIONS, INTERPOLATIONS, LINEAR_SPACES, SRGB_SPACES, ImageTexture
 
 DISK_VERTICES_DEFAULT = 32
 # Cycles shades objects without a material with a grey diffuse surface.
@@ -32,33 +43,93 @@ DEFAULT_MATERIAL_NAME = "(no material)"
 UNSUPPORTED_GEOMETRY = {"CURVES": "hair curves", "POINTCLOUD": "point cloud", "VOLUME": "volume",
                         "GREASEPENCIL": "Grease Pencil"}
 
+# The Glossy BSDF is ShaderNodeBsdfAnisotropic since Blender 4.0 (nodes.new("ShaderNodeBsdfGlossy") makes one).
+GLOSSY_IDNAMES = ("ShaderNodeBsdfAnisotropic", "ShaderNodeBsdfGlossy")
+
+# What a readable material may ask for that LazyVis does not render: one warning per kind, listing materials.
+ISSUE_MESSAGES = {
+    "transmission": "Principled BSDF Transmission is not rendered (shaded as opaque)",
+    "coat": "Principled BSDF Coat is not rendered",
+    "sheen": "Principled BSDF Sheen is not rendered",
+    "subsurface": "Principled BSDF Subsurface is not rendered (shaded as its diffuse base)",
+    "thin_film": "Principled BSDF Thin Film is not rendered",
+    "alpha": "Principled BSDF Alpha below 1 is rendered opaque",
+    "diffuse_roughness": "diffuse roughness (Oren-Nayar) is rendered as roughness 0 (Lambert)",
+    "anisotropy": "anisotropic reflection is rendered isotropic",
+    "glossy_distribution": "Glossy BSDF Beckmann and Ashikhmin-Shirley distributions are rendered as GGX",
+    "linked": "inputs fed by other nodes are read as their own constant value (only an Image Texture on "
+              "the base colour is read)",
+    "colour_fallback": "colours fed by nodes other than an Image Texture use the socket's own colour "
+                       "(constant-colour fallback for other nodes)",
+    "missing_image": "Image Textures without image data (no image, or a file that cannot be read) use the "
+                     "socket's own colour",
+    "image_source": "image sequences, movies and UDIM tiles are not read; these colours use the socket's own "
+                    "colour",
+    "texture_mapping": "Image Textures with a projection other than Flat, or a Vector input other than a UV "
+                       "Map or Texture Coordinate UV, use the socket's own colour",
+    "interpolation": "Cubic and Smart image interpolation are rendered as Linear",
+    "extension": "image extensions other than Repeat, Extend, Clip and Mirror are rendered as Repeat",
+    "colorspace": "image colour spaces other than sRGB, Linear Rec.709 and Non-Color are read as sRGB "
+                  "(as Non-Color for data)",
+}
+
 
 # -- results ---------------------------------------------------------------------------------------------
 
 
+@dataclass(frozen=True)
+class TextureSource:
+    """An Image Texture node on a base colour: the image, its lookup options and the UV map it reads
+    (``uv_map`` "" = the mesh's active render UV map, as an unlinked Vector input does in Cycles).
+    ``image`` is dropped (None) once the exporter has read its pixels: a record outlives the depsgraph."""
+
+    image: object                   # bpy.types.Image or None
+    image_name: str                 # name_full of the image
+    interpolation: str              # "Closest" or "Linear"
+    extension: str                  # one of core.texture.EXTENSIONS
+    uv_map: str = ""
+
+    @property
+    def key(self) -> tuple[str, str, str]:
+        """One core texture per image and options."""
+        return (self.image_name, self.interpolation, self.extension)
+
+
 @dataclass
 class MaterialRecord:
-    """One row of the material table, with what was read for later (glossy) support.
+    """One row of the material table, as read from the material's nodes.
 
-    ``kind`` is "diffuse", "principled", "emission", "no_nodes", "default", "black" or "viewport"
-    (unreadable node setup, shown with the viewport colour). ``emission`` is the radiance of an
-    emitting material (zero otherwise); metallic/roughness/specular_ior_level/ior are NaN when not
-    read (not a Principled BSDF, or the input is linked).
+    ``kind`` is "diffuse", "principled", "glossy", "mix" (a Diffuse and a Glossy BSDF), "emission",
+    "no_nodes", "default", "black" or "viewport" (unreadable node setup, shown with the viewport colour).
+    ``albedo`` is the base colour (the fallback colour when ``texture`` is set); ``emission`` the radiance
+    of an emitting material (zero otherwise). The other values default to those of ``core.scene.Materials``
+    (a diffuse row). ``issues`` are the kinds of what the nodes ask for and LazyVis does not render
+    (keys of ``ISSUE_MESSAGES``); ``linked_inputs`` the sockets read as constants although linked.
     """
 
     name: str
     kind: str
     albedo: tuple[float, float, float]
     emission: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    metallic: float = math.nan
-    roughness: float = math.nan
-    specular_ior_level: float = math.nan
-    ior: float = math.nan
-    non_diffuse: tuple[str, ...] = ()
+    metallic: float = 0.0
+    roughness: float = 0.5
+    specular_ior_level: float = 0.5
+    ior: float = 1.5
+    specular_tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    glossy_colour: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    diffuse_weight: float = 1.0
+    multiscatter: bool = True
+    texture: TextureSource | None = None
+    issues: tuple[str, ...] = ()
+    linked_inputs: tuple[str, ...] = ()
 
     @property
     def is_emitter(self) -> bool:
         return max(self.emission) > 0.0
+
+    @property
+    def principled(self) -> bool:
+        return self.kind == "principled"
 
 
 @dataclass
@@ -247,8 +318,8 @@ def export_world(world, progress: Progress) -> np.ndarray:
     return background
 
 
-def _linked_node(socket):
-    """The node feeding ``socket`` through reroutes, or None (unlinked, muted or a reroute loop)."""
+def _linked_socket(socket):
+    """The output socket feeding ``socket`` through reroutes, or None (unlinked, muted or a reroute loop)."""
     seen = 0
     while socket.is_linked and seen < 64:
         link = socket.links[0]
@@ -256,9 +327,15 @@ def _linked_node(socket):
             return None
         node = link.from_node
         if node.bl_idname != "NodeReroute":
-            return None if node.mute else node
+            return None if node.mute else link.from_socket
         socket, seen = node.inputs[0], seen + 1
     return None
+
+
+def _linked_node(socket):
+    """The node feeding ``socket`` through reroutes, or None (unlinked, muted or a reroute loop)."""
+    source = _linked_socket(socket)
+    return None if source is None else source.node
 
 
 def _unlinked(node, name: str):
@@ -268,8 +345,130 @@ def _unlinked(node, name: str):
     return socket.default_value
 
 
+class _Inputs:
+    """Reads a shader node's inputs as constants, noting what LazyVis cannot honour."""
+
+    def __init__(self, node) -> None:
+        self.node = node
+        self.issues: list[str] = []
+        self.linked: list[str] = []
+        self.texture: TextureSource | None = None
+
+    def value(self, name: str, default: float = 0.0) -> float:
+        """An unlinked float input (a linked one is read as its own value and reported)."""
+        socket = self.node.inputs.get(name)
+        if socket is None:  # an input this Blender version does not have
+            return default
+        if socket.is_linked:
+            self.linked.append(name)
+        return float(socket.default_value)
+
+    def colour(self, name: str) -> tuple[float, float, float]:
+        """An unlinked colour input, clamped to >= 0 as Cycles does (linked: its own value, reported)."""
+        socket = self.node.inputs[name]
+        if socket.is_linked:
+            self.linked.append(name)
+        return tuple(max(float(c), 0.0) for c in socket.default_value[:3])
+
+    def base_colour(self, name: str) -> tuple[float, float, float]:
+        """A base colour: its constant, or an Image Texture read into ``self.texture`` (the constant is then
+        the fallback); other nodes feeding it fall back to the socket's own colour."""
+        socket = self.node.inputs[name]
+        constant = tuple(float(c) for c in socket.default_value[:3])
+        if not socket.is_linked:
+            return constant
+        source = _linked_socket(socket)
+        node = None if source is None else source.node
+        if node is None or node.bl_idname != "ShaderNodeTexImage" or source.identifier != "Color":
+            self.issues.append("colour_fallback")
+            return constant
+        texture, issues = read_image_texture(node)
+        self.issues.extend(issues)
+        self.texture = texture
+        return constant
+
+    def note_linked(self, *names: str) -> None:
+        """Report the named inputs (normals, tangents, ...) when something feeds them."""
+        for name in names:
+            socket = self.node.inputs.get(name)
+            if socket is not None and socket.is_linked and name not in self.linked:
+                self.linked.append(name)
+
+    def issue(self, kind: str, present: bool) -> None:
+        if present:
+            self.issues.append(kind)
+
+    def record(self, name: str, kind: str, albedo, **values) -> "MaterialRecord":
+        issues = list(self.issues) + (["linked"] if self.linked else [])
+        return MaterialRecord(name, kind, tuple(albedo), texture=self.texture, issues=tuple(dict.fromkeys(issues)),
+                              linked_inputs=tuple(self.linked), **values)
+
+
+def read_image_texture(node) -> tuple[TextureSource | None, list[str]]:
+    """The texture of an Image Texture node feeding a base colour, and the issue kinds met on the way.
+
+    None (the caller keeps the socket's own colour) for a node without image data, an image sequence,
+    movie or UDIM image, a projection other than Flat, or a Vector input other than a UV map.
+    """
+    issues = []
+    image = node.image
+    if image is None or image.source not in ("FILE", "GENERATED"):
+        return None, ["missing_image" if image is None else "image_source"]
+    # Reading the size loads a file image; a missing or unreadable file leaves it without data.
+    width, height = image.size
+    if width * height == 0 or not image.has_data:
+        return None, ["missing_image"]
+    if node.projection != "FLAT":
+        return None, ["texture_mapping"]
+    uv_map = ""
+    vector = node.inputs["Vector"]
+    if vector.is_linked:
+        source = _linked_socket(vector)
+        feeder = None if source is None else source.node
+        if feeder is not None and feeder.bl_idname == "ShaderNodeUVMap":
+            uv_map = feeder.uv_map
+        elif not (feeder is not None and feeder.bl_idname == "ShaderNodeTexCoord" and source.identifier == "UV"):
+            return None, ["texture_mapping"]
+    interpolation = node.interpolation
+    if interpolation not in INTERPOLATIONS:
+        issues.append("interpolation")
+        interpolation = "Linear"
+    extension = node.extension
+    if extension not in EXTENSIONS:
+        issues.append("extension")
+        extension = "REPEAT"
+    if image.colorspace_settings.name not in SRGB_SPACES + LINEAR_SPACES and not image.is_float:
+        issues.append("colorspace")
+    return TextureSource(image, image.name_full, interpolation, extension, uv_map), issues
+
+
+def _is_glossy(node) -> bool:
+    return node.bl_idname in GLOSSY_IDNAMES
+
+
+def _read_diffuse(node, inputs: _Inputs) -> tuple[float, float, float]:
+    inputs.issue("diffuse_roughness", inputs.value("Roughness") > 0.0)
+    inputs.note_linked("Normal")
+    return inputs.base_colour("Color")
+
+
+def _read_glossy(node, inputs: _Inputs) -> dict:
+    """Glossy BSDF (Blender 4+: ``ShaderNodeBsdfAnisotropic``) as the fields of a record."""
+    distribution = node.distribution
+    inputs.issue("glossy_distribution", distribution not in ("GGX", "MULTI_GGX"))
+    inputs.issue("anisotropy", inputs.value("Anisotropy") != 0.0)
+    inputs.note_linked("Rotation", "Normal", "Tangent")
+    return dict(glossy_colour=inputs.colour("Color"), roughness=inputs.value("Roughness", 0.5),
+                multiscatter=distribution == "MULTI_GGX")
+
+
 def read_material(material) -> MaterialRecord | None:
-    """A material's diffuse albedo / emission, or None when its node setup cannot be read."""
+    """A material's row of the material table, or None when its node setup cannot be read.
+
+    Read: Diffuse BSDF, Principled BSDF, Glossy BSDF, a Mix Shader of a Diffuse and a Glossy BSDF with a
+    constant factor, and Emission; a base colour may come from an Image Texture. What a readable node has
+    that LazyVis does not render is listed in ``MaterialRecord.issues`` (the exporter warns once per kind).
+    """
     if material is None:
         return MaterialRecord(DEFAULT_MATERIAL_NAME, "default", DEFAULT_ALBEDO)
     name = material.name
@@ -286,37 +485,101 @@ def read_material(material) -> MaterialRecord | None:
     if node is None:
         return None
     kind = node.bl_idname
+    inputs = _Inputs(node)
     if kind == "ShaderNodeBsdfDiffuse":
-        color = _unlinked(node, "Color")
-        return None if color is None else MaterialRecord(name, "diffuse", tuple(color[:3]))
+        return inputs.record(name, "diffuse", _read_diffuse(node, inputs))
+    if kind in GLOSSY_IDNAMES:
+        return inputs.record(name, "glossy", (0.0, 0.0, 0.0), diffuse_weight=0.0, **_read_glossy(node, inputs))
     if kind == "ShaderNodeEmission":
         color, strength = _unlinked(node, "Color"), _unlinked(node, "Strength")
         if color is None or strength is None:
             return None
         return MaterialRecord(name, "emission", (0.0, 0.0, 0.0), tuple(np.array(color[:3]) * strength))
+    if kind == "ShaderNodeMixShader":
+        return _read_mix(name, node)
     if kind == "ShaderNodeBsdfPrincipled":
-        color = _unlinked(node, "Base Color")
-        if color is None:
-            return None
-        values = {key: _unlinked(node, key) for key in
-                  ("Metallic", "Roughness", "Specular IOR Level", "IOR", "Transmission Weight", "Coat Weight",
-                   "Sheen Weight", "Subsurface Weight", "Emission Strength")}
-        values = {key: (math.nan if value is None else float(value)) for key, value in values.items()}
-        specular = values["Specular IOR Level"], values["IOR"]
-        non_diffuse = []
-        if not (specular[0] == 0.0 or specular[1] == 1.0):
-            non_diffuse.append("specular")
-        for key, label in (("Metallic", "metallic"), ("Transmission Weight", "transmission"),
-                           ("Coat Weight", "coat"), ("Sheen Weight", "sheen"), ("Subsurface Weight", "subsurface")):
-            if not values[key] == 0.0:
-                non_diffuse.append(label)
-        emission = (0.0, 0.0, 0.0)
-        emission_color = _unlinked(node, "Emission Color")
-        if values["Emission Strength"] > 0 and emission_color is not None:
-            emission = tuple(np.array(emission_color[:3]) * values["Emission Strength"])
-        return MaterialRecord(name, "principled", tuple(color[:3]), emission, values["Metallic"],
-                              values["Roughness"], specular[0], specular[1], tuple(non_diffuse))
+        return _read_principled(name, node, inputs)
     return None
+
+
+def _read_mix(name: str, node) -> MaterialRecord | None:
+    """A Mix Shader of one Diffuse and one Glossy BSDF (either order) with an unlinked factor.
+
+    Cycles weighs the first shader by 1 - fac and the second by fac, fac clamped to [0, 1]
+    (``svm_node_mix_closure``).
+    """
+    factor = node.inputs[0]
+    if factor.is_linked:
+        return None
+    fac = min(max(float(factor.default_value), 0.0), 1.0)
+    first, second = _linked_node(node.inputs[1]), _linked_node(node.inputs[2])
+    if first is None or second is None:
+        return None
+    if first.bl_idname == "ShaderNodeBsdfDiffuse" and _is_glossy(second):
+        diffuse, glossy, diffuse_weight, glossy_weight = first, second, 1.0 - fac, fac
+    elif _is_glossy(first) and second.bl_idname == "ShaderNodeBsdfDiffuse":
+        diffuse, glossy, diffuse_weight, glossy_weight = second, first, fac, 1.0 - fac
+    else:
+        return None
+    inputs = _Inputs(diffuse)
+    albedo = _read_diffuse(diffuse, inputs)
+    inputs.node = glossy
+    values = _read_glossy(glossy, inputs)
+    values["glossy_colour"] = tuple(glossy_weight * c for c in values["glossy_colour"])
+    return inputs.record(name, "mix", albedo, diffuse_weight=diffuse_weight, **values)
+
+
+# Principled inputs LazyVis does not render: (input, issue kind, value at which the input has no effect).
+PRINCIPLED_UNSUPPORTED = (("Transmission Weight", "transmission", 0.0), ("Coat Weight", "coat", 0.0),
+                          ("Sheen Weight", "sheen", 0.0), ("Subsurface Weight", "subsurface", 0.0),
+                          ("Diffuse Roughness", "diffuse_roughness", 0.0), ("Anisotropic", "anisotropy", 0.0),
+                          ("Thin Film Thickness", "thin_film", 0.0), ("Alpha", "alpha", 1.0))
+# Principled inputs read into the record or only relevant to a lobe above.
+PRINCIPLED_READ = {"Base Color", "Metallic", "Roughness", "IOR", "Specular IOR Level", "Specular Tint",
+                   "Emission Color", "Emission Strength", "Weight"}
+
+
+def _read_principled(name: str, node, inputs: _Inputs) -> MaterialRecord:
+    """Principled BSDF: base colour, metallic, roughness, IOR, Specular IOR Level and Tint, distribution;
+    the lobes LazyVis cannot render are left out (as if their weight were 0) and reported."""
+    albedo = inputs.base_colour("Base Color")
+    values = dict(metallic=inputs.value("Metallic"), roughness=inputs.value("Roughness", 0.5),
+                  ior=inputs.value("IOR", 1.5), specular_ior_level=inputs.value("Specular IOR Level", 0.5),
+                  specular_tint=inputs.colour("Specular Tint"), multiscatter=node.distribution == "MULTI_GGX")
+    for socket_name, kind, neutral in PRINCIPLED_UNSUPPORTED:
+        socket = node.inputs.get(socket_name)
+        if socket is not None:
+            inputs.issue(kind, float(socket.default_value) != neutral)
+    strength = inputs.value("Emission Strength")
+    emission_colour = inputs.colour("Emission Color")
+    inputs.note_linked(*(socket.name for socket in node.inputs if socket.name not in PRINCIPLED_READ))
+    emission = tuple(np.array(emission_colour) * strength) if strength > 0 else (0.0, 0.0, 0.0)
+    return inputs.record(name, "principled", albedo, emission=emission, **values)
+
+
+def image_texture(image, interpolation: str = "Linear", extension: str = "REPEAT") -> ImageTexture:
+    """A core texture of a Blender image, holding what Cycles interpolates.
+
+    ``image.pixels`` is bottom row first, as the core expects. Byte images come as ``byte / 255`` and
+    are turned back into bytes, which ``ImageTexture.from_pixels`` premultiplies as Cycles does; float
+    images are Blender's float buffer, already scene-linear and premultiplied, which Cycles copies as it
+    is (``BlenderImageLoader``, colour space raw). Colour spaces the core does not know are read as sRGB
+    (as Non-Color when the space is data).
+    """
+    width, height = image.size
+    pixels = np.empty(len(image.pixels), np.float32)
+    image.pixels.foreach_get(pixels)
+    pixels = pixels.reshape(height, width, -1)
+    space = image.colorspace_settings.name
+    is_data = image.colorspace_settings.is_data
+    if image.is_float:
+        colorspace = "Non-Color" if is_data else "Linear Rec.709"
+        alpha_mode = "NONE" if image.alpha_mode == "NONE" else "PREMUL"
+    else:
+        pixels = np.rint(pixels * 255.0).astype(np.uint8)
+        colorspace = space if space in SRGB_SPACES + LINEAR_SPACES else ("Non-Color" if is_data else "sRGB")
+        alpha_mode = image.alpha_mode
+    return ImageTexture.from_pixels(pixels, colorspace, interpolation, extension, alpha_mode)
 
 
 @dataclass
@@ -327,6 +590,8 @@ class _LocalMesh:
     slot: np.ndarray                # (T,) int64 material slot
     normals: np.ndarray | None      # (T, 3, 3) float64 corner normals, None when no face is smooth
     smooth: np.ndarray              # (T,) bool
+    loops: np.ndarray               # (T, 3) int64 face corner (loop) of each triangle corner
+    uv_maps: dict = field(default_factory=dict)  # UV map name -> (T, 3, 2) float64 or None (no such map)
 
 
 class _DepsgraphReader:
@@ -337,9 +602,13 @@ class _DepsgraphReader:
         self.disk_vertices = disk_vertices
         self.materials: list[MaterialRecord] = []
         self.material_ids: dict[str, int] = {}
+        self.material_texture: list[int] = []  # row of self.textures per material, -1 for none
+        self.textures: list[ImageTexture] = []
+        self.texture_ids: dict[tuple, int] = {}
         self.unreadable: list[str] = []
         self.meshes: dict[int, _LocalMesh] = {}
-        self.parts: list[tuple[np.ndarray, np.ndarray, np.ndarray | None]] = []  # triangles, material, normals
+        # triangles, material, normals, corner UVs (None when no material of the object is textured)
+        self.parts: list[tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]] = []
         self.emitter_parts: list[tuple[np.ndarray, np.ndarray]] = []  # triangles, material
         self.light_polygons: list[np.ndarray] = []
         self.light_radiance: list[np.ndarray] = []
@@ -379,6 +648,18 @@ class _DepsgraphReader:
                 record = MaterialRecord(material.name, "viewport", tuple(material.diffuse_color[:3]))
             index = self.material_ids[key] = len(self.materials)
             self.materials.append(record)
+            self.material_texture.append(self.texture_index(record.texture))
+            if record.texture is not None:
+                record.texture = replace(record.texture, image=None)
+        return index
+
+    def texture_index(self, source: TextureSource | None) -> int:
+        if source is None:
+            return -1
+        index = self.texture_ids.get(source.key)
+        if index is None:
+            index = self.texture_ids[source.key] = len(self.textures)
+            self.textures.append(image_texture(source.image, source.interpolation, source.extension))
         return index
 
     def local_mesh(self, mesh) -> _LocalMesh:
@@ -393,6 +674,8 @@ class _DepsgraphReader:
         mesh.vertices.foreach_get("co", positions)
         corners = np.empty(count * 3, np.int32)
         triangles.foreach_get("vertices", corners)
+        loops = np.empty(count * 3, np.int32)
+        triangles.foreach_get("loops", loops)
         slot = np.empty(count, np.int32)
         triangles.foreach_get("material_index", slot)
         smooth = np.empty(count, bool)
@@ -403,7 +686,7 @@ class _DepsgraphReader:
             triangles.foreach_get("split_normals", normals)
             normals = normals.reshape(count, 3, 3).astype(np.float64)
         local = _LocalMesh(positions.reshape(-1, 3).astype(np.float64)[corners].reshape(count, 3, 3),
-                           slot.astype(np.int64), normals, smooth)
+                           slot.astype(np.int64), normals, smooth, loops.reshape(count, 3).astype(np.int64))
         self.meshes[key] = local
         return local
 
@@ -423,6 +706,7 @@ class _DepsgraphReader:
         slots = [self.material_index(slot.material) for slot in obj.material_slots] or [self.material_index(None)]
         lookup = np.array(slots, dtype=np.int64)
         material = lookup[np.clip(local.slot, 0, len(lookup) - 1)]
+        uvs = self.corner_uvs(obj, local, material)
 
         rotation, translation = matrix[:3, :3], matrix[:3, 3]
         triangles = local.triangles @ rotation.T + translation
@@ -439,6 +723,7 @@ class _DepsgraphReader:
             # the transformed shading normals agree (Cycles does the same for negative scale).
             triangles = triangles[:, [0, 2, 1]]
             normals = None if normals is None else normals[:, [0, 2, 1]]
+            uvs = None if uvs is None else uvs[:, [0, 2, 1]]
         if normals is not None:
             flat = ~local.smooth
             normals[flat] = _geometric_normals(triangles[flat])[:, None, :]
@@ -449,8 +734,45 @@ class _DepsgraphReader:
         if emitting.any():
             self.emitter_parts.append((triangles[emitting], material[emitting]))
             self.counts["emitter_triangles"] += int(emitting.sum())
-        self.parts.append((triangles, material, normals))
+        self.parts.append((triangles, material, normals, uvs))
         self.counts["mesh_triangles"] += len(triangles)
+
+    def corner_uvs(self, obj, local: _LocalMesh, material: np.ndarray) -> np.ndarray | None:
+        """(T, 3, 2) texture coordinates of the triangles whose material is textured, each from the UV map
+        its Image Texture reads (zeros elsewhere, and where the mesh lacks that map); None when no
+        material of the object is textured."""
+        maps = {}  # UV map name -> rows of self.materials reading it
+        for row in np.unique(material):  # the object's materials: a handful
+            texture = self.materials[row].texture
+            if texture is not None and self.material_texture[row] >= 0:
+                maps.setdefault(texture.uv_map, []).append(row)
+        if not maps:
+            return None
+        uvs = np.zeros(local.triangles.shape[:2] + (2,))
+        for name, rows in maps.items():
+            corners = self.uv_map(obj.data, local, name)
+            if corners is None:
+                self.skip("objects without the UV map their Image Texture reads get texture coordinates (0, 0)",
+                          f"{obj.name} ({name or 'no UV map'})")
+                continue
+            chosen = np.isin(material, rows)
+            uvs[chosen] = corners[chosen]
+        return uvs
+
+    @staticmethod
+    def uv_map(mesh, local: _LocalMesh, name: str) -> np.ndarray | None:
+        """(T, 3, 2) float64 UVs of the named map ("" = the active render map) at the triangle corners,
+        None when the mesh has no such map."""
+        if name not in local.uv_maps:
+            layers = mesh.uv_layers
+            layer = layers.get(name) if name else next((uv for uv in layers if uv.active_render), None)
+            corners = None
+            if layer is not None:
+                per_loop = np.empty(len(mesh.loops) * 2, np.float32)
+                layer.uv.foreach_get("vector", per_loop)
+                corners = per_loop.reshape(-1, 2).astype(np.float64)[local.loops]
+            local.uv_maps[name] = corners
+        return local.uv_maps[name]
 
     def add_light(self, obj, matrix: np.ndarray) -> None:
         light = obj.data
@@ -501,11 +823,11 @@ class _DepsgraphReader:
         if self.unreadable:
             progress.warn("materials whose node setup LazyVis cannot read are shown with their viewport "
                           "colour: " + ", ".join(sorted(set(self.unreadable))))
-        principled = sorted(m.name for m in self.materials if m.non_diffuse)
-        if principled:
-            progress.warn("Principled BSDF rendered as diffuse base colour only, its specular (or metallic, "
-                          "coat, ...) part is ignored; set Specular IOR Level to 0 to match Cycles: "
-                          + ", ".join(principled))
+        for kind, message in ISSUE_MESSAGES.items():
+            names = sorted(m.name + (f" ({', '.join(m.linked_inputs)})" if kind == "linked" else "")
+                           for m in self.materials if kind in m.issues)
+            if names:
+                progress.warn(f"{message}: {', '.join(names)}")
         for message, names in self.skipped.items():
             progress.warn(f"{message}: {', '.join(sorted(names))}")
 
@@ -519,11 +841,26 @@ class _DepsgraphReader:
             normals = np.concatenate([p[2] if p[2] is not None else
                                       np.repeat(_geometric_normals(p[0])[:, None, :], 3, axis=1)
                                       for p in self.parts])
+        corner_uvs = None
+        if any(p[3] is not None for p in self.parts):
+            corner_uvs = np.concatenate([p[3] if p[3] is not None else np.zeros(p[0].shape[:2] + (2,))
+                                         for p in self.parts])
         lights, names = self.lights()
-        albedo = np.array([m.albedo for m in self.materials]).reshape(-1, 3)
-        emission = np.array([m.emission for m in self.materials]).reshape(-1, 3)
-        scene = Scene(triangles, material_index, Materials(albedo, emission), lights, camera, background, normals)
+        scene = Scene(triangles, material_index, self.material_table(), lights, camera, background, normals,
+                      corner_uvs, list(self.textures))
         return Export(scene, list(self.materials), names, dict(self.counts))
+
+    def material_table(self) -> Materials:
+        rows = self.materials
+
+        def column(name: str, tail: tuple[int, ...] = ()):
+            return np.array([getattr(m, name) for m in rows], dtype=np.float64).reshape((len(rows),) + tail)
+
+        return Materials(column("albedo", (3,)), column("emission", (3,)), np.array(self.material_texture, np.int64),
+                         diffuse_weight=column("diffuse_weight"), principled=[m.principled for m in rows],
+                         metallic=column("metallic"), roughness=column("roughness"), ior=column("ior"),
+                         specular_level=column("specular_ior_level"), specular_tint=column("specular_tint", (3,)),
+                         glossy_colour=column("glossy_colour", (3,)), multiscatter=[m.multiscatter for m in rows])
 
     def lights(self) -> tuple[Lights, list[str]]:
         """Area lights (one-sided polygons) followed by emitting triangles (two-sided), padded to V."""

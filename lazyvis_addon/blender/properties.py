@@ -22,12 +22,26 @@ INTEGRATOR_ITEMS = (
     ("reference", "Reference", "Every triangle is a candidate blocker: exact and slow, for comparisons"),
 )
 
+GLOSSY_INTEGRATOR_ITEMS = (
+    ("ltc", "LTC", "Linearly transformed cosines over the visible parts of each light: noise-free, a few "
+     "percent off at grazing views"),
+    ("phong", "Phong", "Phong lobes matched to the GGX peak, integrated in closed form (the paper's choice): "
+     "noise-free, a cruder highlight shape"),
+    ("mc", "Monte Carlo", "Samples directions over the visible parts of each light: unbiased, noisy at low "
+     "sample counts"),
+)
+
 
 class LazyVisSceneSettings(bpy.types.PropertyGroup):
     """Render settings of the Lazy Visibility engine (``scene.lazyvis``)."""
 
     integrator: EnumProperty(name="Integrator", items=INTEGRATOR_ITEMS, default=_DEFAULTS.integrator,
                              description="How the visible part of each light is integrated")
+    glossy_integrator: EnumProperty(name="Glossy", items=GLOSSY_INTEGRATOR_ITEMS,
+                                    default=_DEFAULTS.glossy_integrator,
+                                    description="How glossy reflection (Principled and Glossy BSDFs) is "
+                                                "integrated over the visible part of each light by the Analytic "
+                                                "and Reference integrators")
     shadow_rays: IntProperty(name="Shadow Rays", default=_DEFAULTS.shadow_rays, min=1, soft_max=64,
                              description="Shadow rays per pixel and light that look for blockers (pass 1), "
                                          "stratified over the light")

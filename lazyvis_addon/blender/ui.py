@@ -61,11 +61,14 @@ class LAZYVIS_RENDER_PT_integrator(LazyVisPanel, bpy.types.Panel):
         layout.use_property_decorate = False
         props = context.scene.lazyvis
         layout.prop(props, "integrator")
+        sub = layout.column()
+        sub.active = props.integrator in ("analytic", "reference")
+        sub.prop(props, "glossy_integrator")
         col = layout.column(align=True)
         col.active = props.integrator in ("analytic", "reduced_mc")
         col.prop(props, "shadow_rays")
         col = layout.column(align=True)
-        col.active = props.integrator in ("reduced_mc", "standard_mc")
+        col.active = props.integrator in ("reduced_mc", "standard_mc") or props.glossy_integrator == "mc"
         col.prop(props, "mc_samples")
         col = layout.column(align=True)
         col.prop(props, "aa_samples")
@@ -238,7 +241,8 @@ class LAZYVIS_MATERIAL_PT_surface(LazyVisPanel, bpy.types.Panel):
         layout = self.layout
         layout.use_property_split = True
         material = context.material
-        layout.label(text="Read: Diffuse, Principled (base colour) and Emission shaders", icon='INFO')
+        layout.label(text="Read: Diffuse, Principled, Glossy, Mix (Diffuse + Glossy) and Emission shaders; "
+                          "Image Texture on the base colour", icon='INFO')
         _draw_node_input(layout, material.node_tree, "Surface")
         layout.prop(material, "diffuse_color", text="Viewport Color (fallback)")
 

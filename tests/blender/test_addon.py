@@ -57,6 +57,7 @@ def test_every_setting_has_a_property_and_reaches_settings(scene):
     assert set(Settings.field_names()) - from_blender <= properties
     props = scene.lazyvis
     props.integrator = "reduced_mc"
+    props.glossy_integrator = "phong"
     props.shadow_rays = 7
     props.mc_samples = 33
     props.connectivity = "4"
@@ -72,7 +73,8 @@ def test_every_setting_has_a_property_and_reaches_settings(scene):
     scene.render.filter_size = 0.75
     props.aa_samples = 4
     assert settings_from_scene(scene) == Settings(
-        integrator="reduced_mc", shadow_rays=7, mc_samples=33, connectivity=4, umbra_detection=False, seed=12,
+        integrator="reduced_mc", glossy_integrator="phong",
+        shadow_rays=7, mc_samples=33, connectivity=4, umbra_detection=False, seed=12,
         frame=42, transparent_background=True, memory_budget_mb=512.0, pixel_batch=4096,
         window_margin=5, threads=3, merge_quads=False, filter_width=0.75, aa_samples=4)
 

@@ -385,43 +385,397 @@ def test_material_table_and_slots(scene):
     assert not warnings
 
 
-def test_principled_specular_warns_once_listing_materials(scene):
+def material_row(exported, name):
+    """{field: value} of the named material's row of the exported material table."""
+    row = [m.name for m in exported.materials].index(name)
+    return {field: value[row] for field, value in exported.scene.materials.arrays().items()}
+
+
+@pytest.mark.parametrize("distribution, multiscatter", [("MULTI_GGX", True), ("GGX", False)])
+def test_principled_inputs_land_in_their_material_fields(scene, distribution, multiscatter):
     add_camera(scene)
     bpy.ops.mesh.primitive_cube_add()
-    cube = bpy.context.object
-    assign(cube, node_material("Shiny", "ShaderNodeBsdfPrincipled", Base_Color=(0.5, 0.5, 0.5)),
-           node_material("Metal", "ShaderNodeBsdfPrincipled", Base_Color=(0.5, 0.5, 0.5), Metallic=1.0,
-                         IOR=1.0),
-           node_material("Matte", "ShaderNodeBsdfPrincipled", Base_Color=(0.5, 0.5, 0.5), IOR=1.0))
-    cube.data.polygons[1].material_index = 1
-    cube.data.polygons[2].material_index = 2
+    material = node_material("Copper", "ShaderNodeBsdfPrincipled", Base_Color=(0.9, 0.5, 0.3), Metallic=0.7,
+                             Roughness=0.3, IOR=1.45, Specular_IOR_Level=0.25, Specular_Tint=(0.9, 0.6, 0.2))
+    next(n for n in material.node_tree.nodes if n.bl_idname == "ShaderNodeBsdfPrincipled").distribution = distribution
+    assign(bpy.context.object, material)
     exported, warnings = export(scene)
-    principled = [w for w in warnings if "Principled" in w]
-    assert len(principled) == 1
-    assert "Shiny" in principled[0] and "Metal" in principled[0] and "Matte" not in principled[0]
-    shiny = next(m for m in exported.materials if m.name == "Shiny")
-    assert (shiny.metallic, shiny.roughness, shiny.specular_ior_level, shiny.ior) == \
+    row = material_row(exported, "Copper")
+    np.testing.assert_allclose(row["albedo"], (0.9, 0.5, 0.3), rtol=1e-6)
+    np.testing.assert_allclose(row["specular_tint"], (0.9, 0.6, 0.2), rtol=1e-6)
+    np.testing.assert_allclose([row["metallic"], row["roughness"], row["ior"], row["specular_level"],
+                                row["diffuse_weight"]], [0.7, 0.3, 1.45, 0.25, 1.0], rtol=1e-6)
+    assert row["principled"] and row["multiscatter"] == multiscatter
+    np.testing.assert_array_equal(row["glossy_colour"], 0.0)
+    assert row["texture_index"] == -1
+    assert not warnings  # a plain Principled BSDF is rendered as it is: nothing to warn about
+
+
+def test_principled_defaults_are_cycles_defaults(scene):
+    add_camera(scene)
+    bpy.ops.mesh.primitive_cube_add()
+    assign(bpy.context.object, node_material("Plastic", "ShaderNodeBsdfPrincipled"))
+    exported, _ = export(scene)
+    record = exported.materials[0]
+    assert (record.metallic, record.roughness, record.specular_ior_level, record.ior) == \
         pytest.approx((0.0, 0.5, 0.5, 1.5))
+    assert record.principled and record.multiscatter and record.specular_tint == (1.0, 1.0, 1.0)
+
+
+@pytest.mark.parametrize("distribution, multiscatter, warned", [
+    ("MULTI_GGX", True, False), ("GGX", False, False), ("BECKMANN", False, True), ("ASHIKHMIN_SHIRLEY", False, True)])
+def test_glossy_bsdf(scene, distribution, multiscatter, warned):
+    add_camera(scene)
+    bpy.ops.mesh.primitive_cube_add()
+    material = node_material("Mirror", "ShaderNodeBsdfGlossy", Color=(0.9, 0.6, 0.3), Roughness=0.2)
+    node = next(n for n in material.node_tree.nodes if n.bl_idname != "ShaderNodeOutputMaterial")
+    assert node.bl_idname == "ShaderNodeBsdfAnisotropic"  # Blender 4+: the Glossy BSDF's own id
+    node.distribution = distribution
+    assign(bpy.context.object, material)
+    exported, warnings = export(scene)
+    row = material_row(exported, "Mirror")
+    np.testing.assert_allclose(row["glossy_colour"], (0.9, 0.6, 0.3), rtol=1e-6)
+    assert row["diffuse_weight"] == 0.0 and not row["principled"]
+    assert row["roughness"] == pytest.approx(0.2) and row["multiscatter"] == multiscatter
+    assert exported.scene.materials.glossy[0]
+    assert any("Beckmann" in w and "Mirror" in w for w in warnings) == warned
+    assert len(warnings) == int(warned)
+
+
+def mix_material(name, fac, glossy_first=False, diffuse_colour=(0.2, 0.4, 0.6), glossy_colour=(1.0, 0.8, 0.5)):
+    """Mix Shader of a Diffuse and a Glossy BSDF (GGX, roughness 0.25) with a constant factor."""
+    material = node_material(name, "ShaderNodeMixShader", Fac=fac)
+    tree = material.node_tree
+    mix = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeMixShader")
+    diffuse, glossy = tree.nodes.new("ShaderNodeBsdfDiffuse"), tree.nodes.new("ShaderNodeBsdfGlossy")
+    diffuse.inputs["Color"].default_value = (*diffuse_colour, 1.0)
+    glossy.inputs["Color"].default_value = (*glossy_colour, 1.0)
+    glossy.inputs["Roughness"].default_value = 0.25
+    glossy.distribution = "GGX"
+    first, second = (glossy, diffuse) if glossy_first else (diffuse, glossy)
+    tree.links.new(first.outputs[0], mix.inputs[1])
+    tree.links.new(second.outputs[0], mix.inputs[2])
+    return material
+
+
+@pytest.mark.parametrize("glossy_first", [False, True])
+@pytest.mark.parametrize("fac", [0.3, 1.5])
+def test_mix_of_diffuse_and_glossy_weights_both_closures(scene, glossy_first, fac):
+    add_camera(scene)
+    bpy.ops.mesh.primitive_cube_add()
+    assign(bpy.context.object, mix_material("Varnish", fac, glossy_first))
+    exported, warnings = export(scene)
+    row = material_row(exported, "Varnish")
+    clamped = min(fac, 1.0)  # Cycles clamps the factor to [0, 1]; the first shader gets 1 - fac
+    glossy_weight = 1.0 - clamped if glossy_first else clamped
+    np.testing.assert_allclose(row["albedo"], (0.2, 0.4, 0.6), rtol=1e-6)
+    assert row["diffuse_weight"] == pytest.approx(1.0 - glossy_weight)
+    np.testing.assert_allclose(row["glossy_colour"], glossy_weight * np.array([1.0, 0.8, 0.5]), rtol=1e-6)
+    assert row["roughness"] == pytest.approx(0.25) and not row["multiscatter"] and not row["principled"]
+    assert exported.materials[0].kind == "mix" and not warnings
+
+
+def test_other_mixes_use_the_viewport_colour(scene):
+    add_camera(scene)
+    bpy.ops.mesh.primitive_cube_add()
+    linked = mix_material("Linked Fac", 0.5)
+    tree = linked.node_tree
+    tree.links.new(tree.nodes.new("ShaderNodeValue").outputs[0],
+                   next(n for n in tree.nodes if n.bl_idname == "ShaderNodeMixShader").inputs[0])
+    two_diffuse = mix_material("Two Diffuse", 0.5)
+    tree = two_diffuse.node_tree
+    mix = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeMixShader")
+    tree.links.new(tree.nodes.new("ShaderNodeBsdfDiffuse").outputs[0], mix.inputs[2])
+    for material in (linked, two_diffuse):
+        material.diffuse_color = (0.1, 0.2, 0.3, 1.0)
+    assign(bpy.context.object, linked, two_diffuse)
+    bpy.context.object.data.polygons[0].material_index = 1
+    exported, warnings = export(scene)
+    assert [m.kind for m in exported.materials] == ["viewport", "viewport"]
+    np.testing.assert_allclose(exported.scene.materials.albedo, [(0.1, 0.2, 0.3)] * 2, rtol=1e-6)
+    listed = [w for w in warnings if "viewport" in w]
+    assert len(listed) == 1 and "Linked Fac" in listed[0] and "Two Diffuse" in listed[0]
+
+
+UNSUPPORTED_PRINCIPLED = [("Glass", {"Transmission Weight": 1.0}, "Transmission"),
+                          ("Lacquer", {"Coat Weight": 0.5}, "Coat"),
+                          ("Velvet", {"Sheen Weight": 1.0}, "Sheen"),
+                          ("Skin", {"Subsurface Weight": 0.3}, "Subsurface"),
+                          ("Chalk", {"Diffuse Roughness": 0.5}, "Oren-Nayar"),
+                          ("Brushed", {"Anisotropic": 0.5}, "anisotropic"),
+                          ("Cutout", {"Alpha": 0.5}, "Alpha")]
+
+
+def test_unsupported_principled_inputs_warn_once_per_kind_and_keep_the_rest(scene):
+    add_camera(scene)
+    bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=1)  # 20 faces: one per material
+    sphere = bpy.context.object
+    materials = []
+    for name, inputs, _ in UNSUPPORTED_PRINCIPLED:
+        material = node_material(name, "ShaderNodeBsdfPrincipled", Base_Color=(0.5, 0.25, 0.125), Metallic=0.5,
+                                 Roughness=0.2)
+        node = next(n for n in material.node_tree.nodes if n.bl_idname == "ShaderNodeBsdfPrincipled")
+        for socket, value in inputs.items():
+            node.inputs[socket].default_value = value
+        materials.append(material)
+    bumpy = node_material("Bumpy", "ShaderNodeBsdfPrincipled", Base_Color=(0.5, 0.25, 0.125), Metallic=0.5,
+                          Roughness=0.2)
+    tree = bumpy.node_tree
+    tree.links.new(tree.nodes.new("ShaderNodeBump").outputs["Normal"],
+                   next(n for n in tree.nodes if n.bl_idname == "ShaderNodeBsdfPrincipled").inputs["Normal"])
+    assign(sphere, *materials, bumpy)
+    for index in range(len(materials) + 1):
+        sphere.data.polygons[index].material_index = index
+    exported, warnings = export(scene)
+    for name, _, word in UNSUPPORTED_PRINCIPLED:
+        named = [w for w in warnings if word in w]
+        assert len(named) == 1 and name in named[0], (word, warnings)
+        assert not any(other in named[0] for other, *_ in UNSUPPORTED_PRINCIPLED if other != name)
+    linked = [w for w in warnings if "Bumpy" in w]
+    assert len(linked) == 1 and "(Normal)" in linked[0] and "constant" in linked[0]
+    assert not any("diffuse base colour only" in w for w in warnings)
+    assert len(warnings) == len(UNSUPPORTED_PRINCIPLED) + 1
+    # What can be rendered is kept: every row is the Principled BSDF without the unsupported lobe.
+    table = exported.scene.materials
+    assert table.principled.all()
+    np.testing.assert_allclose(table.albedo, [(0.5, 0.25, 0.125)] * len(table), rtol=1e-6)
+    np.testing.assert_allclose(table.metallic, 0.5)
+    np.testing.assert_allclose(table.roughness, 0.2, rtol=1e-6)
 
 
 def test_unreadable_materials_use_viewport_colour_with_one_warning(scene):
     add_camera(scene)
     bpy.ops.mesh.primitive_cube_add()
     cube = bpy.context.object
-    glossy = node_material("Glossy", "ShaderNodeBsdfGlossy")
-    glossy.diffuse_color = (0.2, 0.3, 0.4, 1.0)
-    textured = node_material("Textured", Color=(1.0, 1.0, 1.0))
-    texture = textured.node_tree.nodes.new("ShaderNodeTexChecker")
-    textured.node_tree.links.new(texture.outputs["Color"],
-                                 next(n for n in textured.node_tree.nodes
-                                      if n.bl_idname == "ShaderNodeBsdfDiffuse").inputs["Color"])
-    assign(cube, glossy, textured)
+    frosted = node_material("Frosted", "ShaderNodeBsdfTranslucent")
+    frosted.diffuse_color = (0.2, 0.3, 0.4, 1.0)
+    glowing = node_material("Glowing", "ShaderNodeEmission")
+    tree = glowing.node_tree
+    tree.links.new(tree.nodes.new("ShaderNodeTexChecker").outputs["Color"],
+                   next(n for n in tree.nodes if n.bl_idname == "ShaderNodeEmission").inputs["Color"])
+    assign(cube, frosted, glowing)
     cube.data.polygons[0].material_index = 1
     exported, warnings = export(scene)
     listed = [w for w in warnings if "viewport" in w]
-    assert len(listed) == 1 and "Glossy" in listed[0] and "Textured" in listed[0]
+    assert len(listed) == 1 and "Frosted" in listed[0] and "Glowing" in listed[0]
     table = {m.name: i for i, m in enumerate(exported.materials)}
-    np.testing.assert_allclose(exported.scene.materials.albedo[table["Glossy"]], (0.2, 0.3, 0.4), rtol=1e-6)
+    np.testing.assert_allclose(exported.scene.materials.albedo[table["Frosted"]], (0.2, 0.3, 0.4), rtol=1e-6)
+
+
+def test_other_nodes_on_a_base_colour_use_the_socket_colour_with_one_warning(scene):
+    add_camera(scene)
+    bpy.ops.mesh.primitive_cube_add()
+    cube = bpy.context.object
+    checked = node_material("Checked", Color=(0.1, 0.2, 0.3))
+    ramped = node_material("Ramped", "ShaderNodeBsdfPrincipled", Base_Color=(0.4, 0.5, 0.6))
+    for material, socket in ((checked, "Color"), (ramped, "Base Color")):
+        tree = material.node_tree
+        shader = next(n for n in tree.nodes if n.bl_idname != "ShaderNodeOutputMaterial")
+        tree.links.new(tree.nodes.new("ShaderNodeTexChecker").outputs["Color"], shader.inputs[socket])
+    assign(cube, checked, ramped)
+    cube.data.polygons[0].material_index = 1
+    exported, warnings = export(scene)
+    assert len(warnings) == 1 and "constant-colour fallback" in warnings[0]
+    assert "Checked" in warnings[0] and "Ramped" in warnings[0]
+    np.testing.assert_allclose(material_row(exported, "Checked")["albedo"], (0.1, 0.2, 0.3), rtol=1e-6)
+    np.testing.assert_allclose(material_row(exported, "Ramped")["albedo"], (0.4, 0.5, 0.6), rtol=1e-6)
+    assert (exported.scene.materials.texture_index == -1).all() and exported.scene.corner_uvs is None
+
+
+# -- image textures ------------------------------------------------------------------------------------
+
+
+# A 4 x 2 RGBA image in bytes, bottom row first (Blender's order), one texel half transparent.
+TEXELS = np.array([[[255, 0, 0, 255], [0, 255, 0, 255], [0, 0, 255, 255], [255, 255, 255, 255]],
+                   [[10, 20, 30, 255], [200, 100, 50, 255], [60, 120, 180, 128], [0, 0, 0, 255]]], np.uint8)
+
+
+def byte_image(name="Tiles", texels=TEXELS, colorspace="sRGB"):
+    """A generated 8-bit image holding exactly ``texels`` (H, W, 4) uint8, bottom row first."""
+    height, width = texels.shape[:2]
+    image = bpy.data.images.new(name, width, height, alpha=True)
+    image.colorspace_settings.name = colorspace  # before the pixels: a new colour space regenerates the image
+    image.pixels.foreach_set((texels.astype(np.float32) / 255.0).ravel())
+    return image
+
+
+def textured_material(name, image, shader="ShaderNodeBsdfPrincipled", colour=(0.2, 0.4, 0.6), **options):
+    """``shader`` whose base colour (``colour`` unlinked) is an Image Texture of ``image`` through a reroute."""
+    material = node_material(name, shader, **{"Base_Color" if "Principled" in shader else "Color": colour})
+    tree = material.node_tree
+    shader_node = next(n for n in tree.nodes if n.bl_idname == shader)
+    texture = tree.nodes.new("ShaderNodeTexImage")
+    texture.image = image
+    for key, value in options.items():
+        setattr(texture, key, value)
+    reroute = tree.nodes.new("NodeReroute")
+    tree.links.new(texture.outputs["Color"], reroute.inputs[0])
+    tree.links.new(reroute.outputs[0], shader_node.inputs["Base Color" if "Principled" in shader else "Color"])
+    return material, texture
+
+
+def plane_uv_expected(triangles, scale=1.0, offset=0.0):
+    """Blender's default plane (size 2) maps local (x, y) in [-1, 1]^2 onto UV ((x + 1) / 2, (y + 1) / 2)."""
+    return scale * (triangles[..., :2] + 1.0) / 2.0 + offset
+
+
+@pytest.mark.parametrize("mirror", [False, True])
+def test_image_texture_on_the_base_colour_exports_texels_options_and_uvs(scene, mirror):
+    add_camera(scene)
+    bpy.ops.mesh.primitive_plane_add(size=2.0)
+    plane = bpy.context.object
+    if mirror:  # a mirroring transform reverses the triangles' corners: the UVs must follow
+        plane.scale = (-1.0, 1.0, 1.0)
+    material, _ = textured_material("Tiled", byte_image(), interpolation="Closest", extension="EXTEND")
+    assign(plane, material)
+    exported, warnings = export(scene)
+    assert not warnings
+    core = exported.scene
+    assert len(core.textures) == 1 and core.materials.texture_index[0] == 0
+    np.testing.assert_allclose(core.materials.albedo[0], (0.2, 0.4, 0.6), rtol=1e-6)  # the fallback colour
+    texture = core.textures[0]
+    assert (texture.srgb, texture.interpolation, texture.extension) == (True, "Closest", "EXTEND")
+    assert texture.shape == (2, 4)
+    # Opaque texels as they are, bottom row first; the half-transparent one associated as Cycles does.
+    np.testing.assert_array_equal(texture.texels[0, :, :3] * 255.0, TEXELS[0, :, :3])
+    np.testing.assert_allclose(texture.texels[1, 1] * 255.0, (200, 100, 50, 255), atol=1e-4)
+    np.testing.assert_allclose(texture.texels[1, 2] * 255.0, (60 * 128 // 255, 120 * 128 // 255,
+                                                            180 * 128 // 255, 128), atol=1e-4)
+    local = core.triangles * ([-1.0, 1.0, 1.0] if mirror else 1.0)  # back to the plane's own coordinates
+    assert core.corner_uvs.shape == (2, 3, 2)
+    np.testing.assert_allclose(core.corner_uvs, plane_uv_expected(local), atol=1e-6)
+    # The exported scene renders through the core's texture lookup: the corner (1, 1) is the top-right texel.
+    np.testing.assert_allclose(texture.lookup(np.array([[0.99, 0.99]]))[0, :3], 0.0)
+    assert isinstance(core.validated(Progress()), Scene)
+
+
+@pytest.mark.parametrize("colorspace, srgb", [("sRGB", True), ("Non-Color", False), ("Linear Rec.709", False)])
+def test_image_colour_space(scene, colorspace, srgb):
+    add_camera(scene)
+    bpy.ops.mesh.primitive_plane_add(size=2.0)
+    image = byte_image(colorspace=colorspace)
+    assign(bpy.context.object, textured_material("Tiled", image, "ShaderNodeBsdfDiffuse")[0])
+    exported, warnings = export(scene)
+    texture = exported.scene.textures[0]
+    assert texture.srgb == srgb and texture.interpolation == "Linear" and texture.extension == "REPEAT"
+    # Non-Color keeps the straight colour of the half-transparent texel (data is never associated).
+    expected = 60 if colorspace == "Non-Color" else 60 * 128 // 255
+    assert texture.texels[1, 2, 0] * 255.0 == pytest.approx(expected, abs=1e-4)
+    assert not warnings
+
+
+def test_float_image_is_linear_and_kept_as_blender_holds_it(scene):
+    add_camera(scene)
+    bpy.ops.mesh.primitive_plane_add(size=2.0)
+    image = bpy.data.images.new("HDR", 2, 1, float_buffer=True)
+    values = np.array([[[2.5, 0.5, 0.25, 1.0], [0.1, 0.2, 0.3, 0.5]]], np.float32)
+    image.pixels.foreach_set(values.ravel())
+    assign(bpy.context.object, textured_material("Bright", image)[0])
+    exported, _ = export(scene)
+    texture = exported.scene.textures[0]
+    assert not texture.srgb
+    np.testing.assert_array_equal(texture.texels, values)
+
+
+def test_textures_are_shared_per_image_and_options(scene):
+    add_camera(scene)
+    bpy.ops.mesh.primitive_cube_add()
+    cube = bpy.context.object
+    image = byte_image()
+    first, _ = textured_material("A", image)
+    second, _ = textured_material("B", image, "ShaderNodeBsdfDiffuse")
+    third, _ = textured_material("C", image, interpolation="Closest")
+    smart, _ = textured_material("D", image, interpolation="Smart")  # read as Linear: the same texture as A
+    assign(cube, first, second, third, smart)
+    for index in range(4):
+        cube.data.polygons[index].material_index = index
+    exported, warnings = export(scene)
+    rows = {m.name: i for i, m in enumerate(exported.materials)}
+    index = exported.scene.materials.texture_index
+    assert len(exported.scene.textures) == 2
+    assert index[rows["A"]] == index[rows["B"]] == index[rows["D"]] != index[rows["C"]]
+    assert len(warnings) == 1 and "Smart" in warnings[0] and "D" in warnings[0].split(": ")[-1]
+
+
+def add_uv_map(obj, name, scale, offset):
+    """A second UV map on ``obj``: the first one scaled and offset."""
+    mesh = obj.data
+    first = np.empty(len(mesh.loops) * 2, np.float32)
+    mesh.uv_layers[0].uv.foreach_get("vector", first)
+    layer = mesh.uv_layers.new(name=name)
+    layer.uv.foreach_set("vector", first * scale + offset)
+    return layer
+
+
+@pytest.mark.parametrize("vector", ["uv_map_node", "texture_coordinate", "unlinked"])
+def test_texture_reads_the_uv_map_its_vector_input_names(scene, vector):
+    add_camera(scene)
+    bpy.ops.mesh.primitive_plane_add(size=2.0)
+    plane = bpy.context.object
+    add_uv_map(plane, "Shifted", 0.5, 0.25)
+    material, texture = textured_material("Tiled", byte_image())
+    tree = material.node_tree
+    if vector == "uv_map_node":  # a named map, through a reroute; the render map stays the first one
+        uv_node = tree.nodes.new("ShaderNodeUVMap")
+        uv_node.uv_map = "Shifted"
+        reroute = tree.nodes.new("NodeReroute")
+        tree.links.new(uv_node.outputs["UV"], reroute.inputs[0])
+        tree.links.new(reroute.outputs[0], texture.inputs["Vector"])
+    else:  # the active render map, made the second one
+        plane.data.uv_layers["Shifted"].active_render = True
+        if vector == "texture_coordinate":
+            tree.links.new(tree.nodes.new("ShaderNodeTexCoord").outputs["UV"], texture.inputs["Vector"])
+    assign(plane, material)
+    exported, warnings = export(scene)
+    np.testing.assert_allclose(exported.scene.corner_uvs, plane_uv_expected(exported.scene.triangles, 0.5, 0.25),
+                               atol=1e-6)
+    assert not warnings
+
+
+def test_objects_without_the_uv_map_get_zeros_and_a_warning(scene):
+    add_camera(scene)
+    material, texture = textured_material("Tiled", byte_image())
+    tree = material.node_tree
+    uv_node = tree.nodes.new("ShaderNodeUVMap")
+    uv_node.uv_map = "Shifted"
+    tree.links.new(uv_node.outputs["UV"], texture.inputs["Vector"])
+    bpy.ops.mesh.primitive_plane_add(size=2.0)
+    with_map = bpy.context.object
+    with_map.name = "Mapped"
+    add_uv_map(with_map, "Shifted", 0.5, 0.25)
+    assign(with_map, material)
+    bpy.ops.mesh.primitive_plane_add(size=2.0, location=(0.0, 0.0, -3.0))
+    without = bpy.context.object
+    without.name = "Unmapped"
+    assign(without, material)
+    bpy.ops.mesh.primitive_cube_add(location=(5.0, 0.0, 0.0))  # untextured: zeros, no warning
+    exported, warnings = export(scene)
+    core = exported.scene
+    mapped = np.abs(core.triangles[:, :, 2]).max(axis=1) < 1e-6
+    unmapped = np.abs(core.triangles[:, :, 2] + 3.0).max(axis=1) < 1e-6
+    assert mapped.sum() == 2 and unmapped.sum() == 2 and len(core.triangles) == 16
+    np.testing.assert_allclose(core.corner_uvs[mapped], plane_uv_expected(core.triangles[mapped], 0.5, 0.25),
+                               atol=1e-6)
+    np.testing.assert_array_equal(core.corner_uvs[~mapped], 0.0)
+    assert len(warnings) == 1 and "Unmapped (Shifted)" in warnings[0] and "Mapped," not in warnings[0]
+
+
+@pytest.mark.parametrize("case", ["missing_file", "no_image"])
+def test_missing_image_falls_back_to_the_socket_colour_with_a_warning(scene, case):
+    add_camera(scene)
+    bpy.ops.mesh.primitive_plane_add(size=2.0)
+    image = None
+    if case == "missing_file":
+        image = bpy.data.images.new("Gone", 4, 4)
+        image.source = "FILE"
+        image.filepath = "//does/not/exist.png"
+    material, _ = textured_material("Lost", image, colour=(0.3, 0.5, 0.7))
+    assign(bpy.context.object, material)
+    exported, warnings = export(scene)
+    core = exported.scene
+    np.testing.assert_allclose(core.materials.albedo[0], (0.3, 0.5, 0.7), rtol=1e-6)
+    assert core.materials.texture_index[0] == -1 and core.textures == [] and core.corner_uvs is None
+    assert len(warnings) == 1 and "without image data" in warnings[0] and "Lost" in warnings[0]
 
 
 def test_reroute_nodes_are_followed(scene):

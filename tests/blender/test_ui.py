@@ -49,7 +49,8 @@ def test_render_panels_draw_scene_properties(scene):
     for panel in (ui.LAZYVIS_RENDER_PT_integrator, ui.LAZYVIS_RENDER_PT_blocker_map, ui.LAZYVIS_RENDER_PT_lights,
                   ui.LAZYVIS_RENDER_PT_film, ui.LAZYVIS_RENDER_PT_performance, ui.LAZYVIS_VIEWLAYER_PT_passes):
         drawn += draw(panel, context).props
-    for name in ("integrator", "shadow_rays", "mc_samples", "seed", "connectivity", "umbra_detection",
+    for name in ("integrator", "glossy_integrator",
+                 "shadow_rays", "mc_samples", "seed", "connectivity", "umbra_detection",
                  "window_margin", "merge_quads", "disk_vertices", "film_transparent", "memory_budget_mb", "pixel_batch", "threads_mode", "threads",
                  "use_pass_z", "use_pass_normal", "use_pass_blocker_count"):
         assert name in drawn
