@@ -25,7 +25,7 @@ import numpy as np
 
 from .ggx import (GlossyMaterial, PrincipledMetal, PrincipledSpecular, energy_factor, ggx_brdf,
                   principled_diffuse_weight)
-from .ltc import material_magnitude
+from .ltc import lobe_magnitudes, material_magnitude
 from .scene import Materials
 
 
@@ -90,6 +90,25 @@ class SurfaceBsdf:
                 value[p] += weight * ggx_brdf(wi[p], view[p], normal[p], roughness[p], closure)
         return value
 
+    def glossy_magnitude(self, rows: np.ndarray, wi: np.ndarray) -> np.ndarray:
+        """The white lobe's hemispherical albedo times every closure's weight, Fresnel and multiscatter
+        factor, the Fresnel taken at the half vector of ω_i (S, 3): the analytic integrators' estimate of
+        ∫_P f_glossy cos θ_i / ∫_P D_lobe for a polygon P whose lobe-weighted mean direction is ω_i.
+        Unlike ``glossy_scale`` (the Fresnel averaged over the whole lobe) it follows the Fresnel across
+        the lobe, which at oblique views varies several-fold between the mirror direction and grazing."""
+        normal, view, roughness = self.normal[rows], self.view[rows], self.roughness[rows]
+        cos_view = np.clip(_dot(normal, view), 0.0, 1.0)
+        half = wi + view
+        half /= np.maximum(np.linalg.norm(half, axis=1, keepdims=True), 1e-300)
+        cos_hv = np.clip(_dot(half, view), 0.0, 1.0)
+        norm = lobe_magnitudes(roughness, cos_view)[0][:, None]
+        value = np.zeros((len(rows), 3))
+        for p, closures in _closures(self.materials, self.row[rows], self.base[rows], np.ones(len(rows), bool)):
+            for closure, weight in closures:
+                fresnel = _reflectance(closure, cos_hv[p])
+                value[p] += weight * fresnel * energy_factor(closure, roughness[p], cos_view[p])
+        return norm * value
+
     def value(self, rows: np.ndarray, wi: np.ndarray) -> np.ndarray:
         """The whole BSDF f(ω_i, ω_o) (S, 3) in 1/sr: diffuse / π above the horizon plus the GGX lobes."""
         above = (_dot(self.normal[rows], wi) > 0.0)[:, None]
@@ -98,6 +117,11 @@ class SurfaceBsdf:
         if len(lobed):
             value[lobed] += self.glossy_value(rows[lobed], wi[lobed])
         return value
+
+
+def _reflectance(closure, cos_hv: np.ndarray) -> np.ndarray:
+    """A closure's Fresnel factor at the microfacet, (P, 3); the closure objects hold one row per point."""
+    return closure.reflectance(cos_hv)
 
 
 def _closures(materials: Materials, row: np.ndarray, base: np.ndarray, shaded: np.ndarray):

@@ -328,6 +328,13 @@ def projected_solid_angle(directions: np.ndarray, normal: np.ndarray) -> np.ndar
     -------
     (N,) float64, steradians, >= 0: irradiance / radiance for a constant-radiance polygon.
     """
+    return np.abs(np.einsum("nd,nd->n", irradiance_vector(directions), normal))
+
+
+def irradiance_vector(directions: np.ndarray) -> np.ndarray:
+    """The vector form factor of each polygon (Arvo 1994), (N, 3): its dot product with a unit normal is
+    the polygon's projected solid angle about that normal (up to the sign set by the winding), and its
+    direction is the cosine-weighted mean direction of the polygon. Arguments as ``projected_solid_angle``."""
     unit = directions / np.maximum(np.sqrt(np.einsum("nkd,nkd->nk", directions, directions)), 1e-300)[:, :, None]
     nxt = np.roll(unit, -1, axis=1)
     cross = cross3(unit, nxt)
@@ -335,8 +342,7 @@ def projected_solid_angle(directions: np.ndarray, normal: np.ndarray) -> np.ndar
     cos = np.einsum("nkd,nkd->nk", unit, nxt)
     angle = np.arctan2(sin, cos)
     ratio = np.where(sin > 1e-15, angle / np.maximum(sin, 1e-300), 1.0)
-    total = 0.5 * np.einsum("nkd,nd->n", cross * ratio[:, :, None], normal)
-    return np.abs(total)
+    return 0.5 * np.einsum("nkd,nk->nd", cross, ratio)
 
 
 # ------------------------------------------------------------------------------------------------------

@@ -405,35 +405,41 @@ def _lands_in_pieces(pieces: VisiblePieces, frames: LightFrames, couple: np.ndar
     return landed & reaches
 
 
-def glossy_share(pieces: VisiblePieces, frames: LightFrames, bsdf: SurfaceBsdf, method: str) -> np.ndarray:
-    """The share of each couple's GGX lobe that falls in its visible pieces, (Nc,) in [0, 1].
+def glossy_analytic(pieces: VisiblePieces, frames: LightFrames, bsdf: SurfaceBsdf, method: str) -> np.ndarray:
+    """∫ f_glossy cos θ_i over each couple's visible pieces by an analytic lobe, (Nc, 3).
 
-    ``method`` "ltc": linearly transformed cosines (Heitz et al. 2016) over every piece; "phong": the
-    paper's normalised Phong lobe about the mirror direction, exponent peak-matched to the roughness
-    (``phong.phong_exponent_from_roughness``). Times ``bsdf.glossy_scale`` this is ∫ f_glossy cos θ_i.
-    Only pieces of glossy points are integrated.
+    ``method`` "ltc": per piece, the share of the GGX lobe it holds by linearly transformed cosines (Heitz et
+    al. 2016), times the lobe's albedo with every closure's Fresnel evaluated at the piece's lobe-weighted
+    mean direction (``SurfaceBsdf.glossy_magnitude``). "phong": the share of the paper's normalised Phong
+    lobe about the mirror direction, exponent peak-matched to the roughness
+    (``phong.phong_exponent_from_roughness``), times the lobe's albedo with its mean Fresnel
+    (``SurfaceBsdf.glossy_scale``). Only pieces of glossy, not mirror-smooth points are integrated.
     """
     n_couples = len(pieces.couple_pixel)
-    share = np.zeros(n_couples)
+    weights = np.zeros((n_couples, 3))
     piece_pixel = pieces.couple_pixel[pieces.couple]
     rough = alpha_from_roughness(bsdf.roughness[piece_pixel]) ** 2 > ROUGHNESS_SQ_THRESHOLD  # mirrors: elsewhere
     lobed = np.flatnonzero(bsdf.glossy[piece_pixel] & rough)
     if len(lobed) == 0:
-        return share
+        return weights
     couple = pieces.couple[lobed]
     pixel = piece_pixel[lobed]
     directions = pieces.couples.directions(frames, pieces.uv[lobed], couple)
     normal, view, roughness = bsdf.normal[pixel], bsdf.view[pixel], bsdf.roughness[pixel]
     if method == "ltc":
-        per_piece = ltc_shape_integral(directions, normal, view, roughness, pieces.count[lobed])
+        share, centroid = ltc_shape_integral(directions, normal, view, roughness, pieces.count[lobed], centroid=True)
+        per_piece = share[:, None] * bsdf.glossy_magnitude(pixel, centroid)
     elif method == "phong":
         # The moments' recurrence costs one step per exponent unit: narrower lobes than n = 2000 (roughness
         # below 0.126) are integrated at n = 2000.
         exponent = np.minimum(phong_exponent_from_roughness(roughness), PHONG_MAX_EXPONENT)
-        per_piece = phong_polygon_integral(directions, normal, view, exponent, pieces.count[lobed])
+        share = phong_polygon_integral(directions, normal, view, exponent, pieces.count[lobed])
+        per_piece = share[:, None] * bsdf.glossy_scale[pixel]
     else:
         raise ValueError(f"unknown glossy integral {method!r}")
-    return np.bincount(couple, weights=per_piece, minlength=n_couples)
+    for channel in range(3):  # colour channels
+        weights[:, channel] = np.bincount(couple, weights=per_piece[:, channel], minlength=n_couples)
+    return weights
 
 
 def couple_weights(pieces: VisiblePieces, surface: SurfacePoints, frames: LightFrames, bsdf: SurfaceBsdf,
@@ -452,8 +458,7 @@ def couple_weights(pieces: VisiblePieces, surface: SurfacePoints, frames: LightF
         return weights
     if settings.glossy_integrator == "mc":
         return weights + reduced_domain_mc(pieces, surface, frames, bsdf, settings, pixel_global, glossy_only=True)
-    share = glossy_share(pieces, frames, bsdf, settings.glossy_integrator)
-    return weights + share[:, None] * bsdf.glossy_scale[pieces.couple_pixel]
+    return weights + glossy_analytic(pieces, frames, bsdf, settings.glossy_integrator)
 
 
 def mirror_weights(pieces: VisiblePieces, frames: LightFrames, bsdf: SurfaceBsdf) -> np.ndarray:

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .geometry import clip_convex, projected_solid_angle
+from .geometry import clip_convex, irradiance_vector
 from .ggx import (ROUGHNESS_SQ_THRESHOLD, GGXMaterial, GlossyMaterial, PrincipledMetal, PrincipledSpecular,
                   albedo_tables, alpha_from_roughness, energy_factor, lookup_table)
 from .phong import clip_to_half_spaces, vertex_count_from_padding
@@ -96,7 +96,7 @@ def ltc_inverse_matrix(roughness, cos_view) -> np.ndarray:
     return inverse
 
 
-def ltc_shape_integral(directions, normal, view, roughness, count=None) -> np.ndarray:
+def ltc_shape_integral(directions, normal, view, roughness, count=None, centroid: bool = False):
     """∫_P D_ltc dω: the fraction of the fitted lobe that falls in each polygon, (M,) in [0, 1].
 
     Parameters
@@ -107,6 +107,10 @@ def ltc_shape_integral(directions, normal, view, roughness, count=None) -> np.nd
     normal : (M, 3) unit shading normal; view : (M, 3) unit direction towards the camera.
     roughness : (M,) or scalar (α = roughness²).
     count : (M,) int64, optional vertex counts (inferred from the padding when omitted).
+    centroid : bool                  also return the lobe-weighted mean direction over each polygon, (M, 3)
+                                     unit world vectors (zero where the share is 0): the clamped cosine's
+                                     mean direction over M⁻¹P (its vector form factor) mapped back by M.
+                                     Cycles' Fresnel evaluated there weights the polygon's share of the lobe.
     """
     points = np.asarray(directions, dtype=np.float64)
     normal = np.asarray(normal, dtype=np.float64)
@@ -120,9 +124,24 @@ def ltc_shape_integral(directions, normal, view, roughness, count=None) -> np.nd
     transform = np.einsum("mij,mjk->mik", ltc_inverse_matrix(roughness, cos_view), ltc_frame(normal, view))
     transformed = np.einsum("mij,mkj->mki", transform, points)
     clipped, clipped_count = clip_convex(transformed, count, transformed[..., 2])
-    fraction = projected_solid_angle(clipped, np.tile([0.0, 0.0, 1.0], (rows, 1))) / np.pi
+    vector = irradiance_vector(clipped)
+    vector *= np.where(vector[:, 2] < 0.0, -1.0, 1.0)[:, None]  # either winding: the upper side
+    fraction = vector[:, 2] / np.pi
     smooth = alpha_from_roughness(roughness) ** 2 <= ROUGHNESS_SQ_THRESHOLD
-    return np.where((clipped_count >= 3) & (cos_view > 0.0) & ~smooth, fraction, 0.0)
+    valid = (clipped_count >= 3) & (cos_view > 0.0) & ~smooth
+    share = np.where(valid, fraction, 0.0)
+    if not centroid:
+        return share
+    # M = (M⁻¹)⁻¹ for M⁻¹ = [[a, 0, c], [0, 1, 0], [b, 0, d]] is [[d, 0, -c], [0, ad - bc, 0], [-b, 0, a]] / (ad - bc);
+    # directions only matter, so the determinant is dropped.
+    inverse = np.einsum("mij,mjk->mik", ltc_inverse_matrix(roughness, cos_view), np.eye(3)[None])
+    a, c, b, d = inverse[:, 0, 0], inverse[:, 0, 2], inverse[:, 2, 0], inverse[:, 2, 2]
+    local = np.stack([d * vector[:, 0] - c * vector[:, 2], (a * d - b * c) * vector[:, 1],
+                      -b * vector[:, 0] + a * vector[:, 2]], axis=1)
+    world = np.einsum("mji,mj->mi", ltc_frame(normal, view), local)
+    length = np.linalg.norm(world, axis=1, keepdims=True)
+    world = np.where(valid[:, None] & (length > 0), world / np.maximum(length, 1e-300), 0.0)
+    return share, world
 
 
 def lobe_magnitudes(roughness, cos_view) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
