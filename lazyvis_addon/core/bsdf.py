@@ -11,9 +11,10 @@ serves them all and they differ only in constant factors and Fresnel. Pass 2 the
   (1 - metallic) · base colour · the layering weight of the specular coat, which depends on ω_o
   (``ggx.principled_diffuse_weight``), so it is computed here once per point.
 - ``glossy_scale`` (N, 3): the hemispherical integral of every GGX closure's f cos θ_i with its Fresnel
-  (``ltc.material_magnitude``) times the closure weight and the Multiscatter GGX factor. The analytic
-  glossy integrators multiply it by the *share* of the lobe that falls in the visible pieces (LTC or Phong),
-  which is exact for the magnitude and approximates only the shape.
+  (``ltc.material_magnitude``) times the closure weight and the Multiscatter GGX factor. The Phong
+  integrator multiplies it by the *share* of its lobe that falls in the visible pieces.
+- ``glossy_magnitude(rows, wi)``: the same with every Fresnel evaluated at one direction ω_i; the LTC
+  integrator multiplies it by each piece's share of the lobe, with ω_i the piece's lobe-weighted direction.
 - ``value(rows, wi)``: f itself, for the Monte Carlo integrators (unbiased for any row).
 """
 
@@ -105,7 +106,7 @@ class SurfaceBsdf:
         value = np.zeros((len(rows), 3))
         for p, closures in _closures(self.materials, self.row[rows], self.base[rows], np.ones(len(rows), bool)):
             for closure, weight in closures:
-                fresnel = _reflectance(closure, cos_hv[p])
+                fresnel = closure.reflectance(cos_hv[p])
                 value[p] += weight * fresnel * energy_factor(closure, roughness[p], cos_view[p])
         return norm * value
 
@@ -117,11 +118,6 @@ class SurfaceBsdf:
         if len(lobed):
             value[lobed] += self.glossy_value(rows[lobed], wi[lobed])
         return value
-
-
-def _reflectance(closure, cos_hv: np.ndarray) -> np.ndarray:
-    """A closure's Fresnel factor at the microfacet, (P, 3); the closure objects hold one row per point."""
-    return closure.reflectance(cos_hv)
 
 
 def _closures(materials: Materials, row: np.ndarray, base: np.ndarray, shaded: np.ndarray):
