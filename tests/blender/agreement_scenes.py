@@ -160,8 +160,6 @@ CASES = (
     # edge marks from a ring of camera rays outside the frame; the chapel is +8.6% too bright.
     Case("textured_filter1.5", (96, 96), blend="sample_blends/textured.blend",
          lazyvis=COMPLETE_BLOCKER_MAP["textured"], filter_width=DEFAULT_FILTER),
-    # chapel at filter 1.5 (references made, not committed): LazyVis is +8.6% too bright, combined noise
-    # ratio 2.0 -- its anti-aliasing samples inherit pixel blocker lists that miss sub-pixel slats. Open.
 ) + tuple(Case(f"glossy_{roughness}", (96, 72), build=glossy_floor, options=(("roughness", roughness),),
                samples_factor=4 if roughness < 0.2 else 1)  # a sharp highlight is the path tracer's hard case
           for roughness in GLOSSY_ROUGHNESS)
