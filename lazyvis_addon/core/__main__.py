@@ -19,7 +19,7 @@ from .png import linear_to_srgb8, write_png
 from .progress import Progress, RenderCancelled
 from .render import RenderOutput, render
 from .scene import Camera, Scene
-from .settings import INTEGRATORS, Settings
+from .settings import GLOSSY_INTEGRATORS, INTEGRATORS, Settings
 
 
 class ConsoleProgress(Progress):
@@ -72,6 +72,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="render only this pixel window of the frame (y down from the top row)")
     defaults = Settings()
     parser.add_argument("--integrator", choices=INTEGRATORS, default=defaults.integrator)
+    parser.add_argument("--glossy-integrator", choices=GLOSSY_INTEGRATORS, default=defaults.glossy_integrator,
+                        help="how GGX lobes are integrated over the visible pieces")
     parser.add_argument("--shadow-rays", type=int, default=defaults.shadow_rays)
     parser.add_argument("--samples", type=int, default=defaults.mc_samples, help="Monte Carlo samples per light")
     parser.add_argument("--connectivity", type=int, choices=(4, 8), default=defaults.connectivity)
@@ -96,7 +98,8 @@ def main(argv=None) -> int:
             cam = scene.camera
             scene.camera = Camera(cam.world_from_camera, cam.width, cam.height, cam.projection, cam.screen_window,
                                   tuple(args.window))
-        settings = Settings(integrator=args.integrator, shadow_rays=args.shadow_rays, mc_samples=args.samples,
+        settings = Settings(integrator=args.integrator, glossy_integrator=args.glossy_integrator,
+                            shadow_rays=args.shadow_rays, mc_samples=args.samples,
                             connectivity=args.connectivity, umbra_detection=not args.no_umbra, seed=args.seed,
                             memory_budget_mb=args.memory_mb)
         progress = ConsoleProgress()
