@@ -32,8 +32,10 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
-def configure_cycles(scene, samples: int, seed: int, threads: int = 0) -> None:
-    """Cycles settings of a direct-light reference (radiometry.md)."""
+def configure_cycles(scene, samples: int, seed: int, threads: int = 0, filter_width: float = 0.01) -> None:
+    """Cycles settings of a direct-light reference (radiometry.md); ``filter_width`` the Blackman-Harris
+    pixel filter's radius (0.01, a point sample at the pixel centre, unless a test compares filtered
+    images: Blender's default is 1.5)."""
     scene.render.engine = "CYCLES"
     cycles = scene.cycles
     cycles.device = "CPU"
@@ -41,7 +43,8 @@ def configure_cycles(scene, samples: int, seed: int, threads: int = 0) -> None:
     cycles.use_adaptive_sampling = False
     cycles.use_denoising = False
     cycles.max_bounces = 0
-    cycles.filter_width = 0.01
+    cycles.pixel_filter_type = "BLACKMAN_HARRIS"
+    cycles.filter_width = filter_width
     cycles.light_sampling_threshold = 0.0
     cycles.sample_clamp_direct = 0.0
     cycles.sample_clamp_indirect = 0.0

@@ -5,8 +5,9 @@
     .venv/bin/python tools/make_cycles_references.py suzanne --samples 1024 --output-dir /tmp/refs
 
 Cycles settings are the direct-light reference of tools/make_cycles_reference.py (radiometry note):
-max_bounces 0, filter_width 0.01 (a point sample at each pixel centre, as LazyVis shades), no denoiser,
-no adaptive sampling, light_sampling_threshold 0, no clamping, fixed seeds, CPU. Each scene is rendered at
+max_bounces 0, filter_width 0.01 (a point sample at each pixel centre, as LazyVis shades; a case with its
+own ``filter_width``, e.g. Blender's default 1.5, uses that), no denoiser, no adaptive sampling,
+light_sampling_threshold 0, no clamping, fixed seeds, CPU. Each scene is rendered at
 its own low resolution (the tests render LazyVis at the same one) with seeds 1 and 2: the difference
 between the two is the noise floor the tests measure LazyVis against.
 
@@ -88,8 +89,9 @@ def main(argv: list[str]) -> int:
     index_path = output_dir / "references.json"
     index = json.loads(index_path.read_text()) if index_path.exists() else {}
     index.update(blender=bpy.app.version_string, seeds=list(SEEDS),
-                 settings="tools/make_cycles_reference.py configure_cycles: max_bounces 0, filter_width 0.01, "
-                          "no denoising, no adaptive sampling, light_sampling_threshold 0, no clamping")
+                 settings="tools/make_cycles_reference.py configure_cycles: max_bounces 0, filter_width 0.01 "
+                          "(Blackman-Harris; a scene's own filter_width where recorded), no denoising, "
+                          "no adaptive sampling, light_sampling_threshold 0, no clamping")
     scenes = index.setdefault("scenes", {})
 
     lazyvis_addon.register()  # the sample files use the LAZYVIS engine and scene.lazyvis settings
@@ -102,7 +104,7 @@ def main(argv: list[str]) -> int:
             for seed, path in zip(SEEDS, case.reference_paths(SEEDS)):
                 path = output_dir / path.name
                 scene = agreement_scenes.load(case)
-                reference.configure_cycles(scene, samples, seed, args.threads)
+                reference.configure_cycles(scene, samples, seed, args.threads, case.filter_width)
                 reference.configure_output(scene, str(path))
                 scene.render.image_settings.color_mode = "RGB"
                 started = time.perf_counter()
@@ -116,6 +118,7 @@ def main(argv: list[str]) -> int:
             scenes[case.name] = dict(
                 source=case.blend or f"tests/blender/agreement_scenes.py:{case.build.__name__}",
                 source_sha256=case.source_digest(), resolution=list(case.resolution), samples=samples,
+                filter_width=case.filter_width,
                 files=[p.name for p in paths], seconds=seconds, relative_noise_floor=round(floor, 6),
                 relative_noise_floor_if_half=round(floor_half, 6), mean=round(float(first.mean()), 6),
                 kilobytes=[round(p.stat().st_size / 1024) for p in paths])

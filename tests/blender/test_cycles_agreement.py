@@ -4,7 +4,8 @@ the engine and the core reproduce Blender's own renderer, pixel for pixel, up to
 No Cycles render runs here. The references are committed: ``tests/references/<scene>.seed1.exr`` and
 ``.seed2.exr``, made by ``tools/make_cycles_references.py`` (Cycles 5.0.1, direct light only, filter width
 0.01 = a point sample at each pixel centre, thousands of samples, seeds 1 and 2), at each scene's low
-resolution (``agreement_scenes.CASES``). Each test renders the same scene at the same resolution with
+resolution (``agreement_scenes.CASES``); the ``*_filter1.5`` cases use Blender's default filter instead
+(``test_default_filter_matches_cycles``, at the end). Each test renders the same scene at the same resolution with
 LazyVis through Blender (``bpy.ops.render.render``, the engine's own path from the depsgraph) and compares.
 
 The statistics, over every RGB value of the image. A and B are the two Cycles renders, L the LazyVis one,
@@ -35,7 +36,14 @@ What legitimately differs, and how it is handled (figures measured against the c
   pixel around each centre; 0.4% of the boxes' pixels, 3.3% of the chapel's with its bevelled benches,
   at most 5% allowed) and leaves them out. The stray 1-in-1023 samples only matter against an emitter
   seen by the camera (one sample of 6.0 in 8192 is 50 times the noise there): its pixels and their neighbours
-  are left out too. Elsewhere they move a pixel by 0.1% of a neighbour's contrast, inside the margin.
+  are left out too. Elsewhere they move a pixel by 0.1% of a neighbour's contrast, inside the margin,
+  except against a texture (below).
+- Textures (textured.blend: a checker, Closest interpolation, 36:1 in linear light): a texel edge is as
+  sharp as a silhouette, so pixels within 0.02 pixel of one are left out too (found by lens-shifting full
+  LazyVis renders; 32 pixels, 0.35%): with them the ratio is 44. And the stray samples, next to a checker
+  edge, move a dark pixel by a few percent (ratio 1.43 with them ignored, over a fifth of the pixels): they are
+  modelled, not left out (``with_stray_samples``: 2/1023 of the weight from LazyVis renders at the strays'
+  positions), giving 0.95.
 - Anti-aliasing: LazyVis' own is turned off here (``point_sampled``), so that it shades pixel centres.
 - Emitters seen by the camera: area lights are hidden from the camera (Cycles' default; LazyVis does not
   draw them). An emissive mesh is seen with its radiance by both; only its outline is left out (above).
@@ -56,6 +64,14 @@ What legitimately differs, and how it is handled (figures measured against the c
   while the floor still agrees: ``test_shadow_terminator_offset_is_the_one_known_difference`` pins it.
 - Disk and ellipse lights are polygons of equal area in LazyVis (64 vertices here): their outlines move
   by 0.1% of the radius, far inside the noise (256 vertices change nothing measurable).
+
+Blender's default filter (issue 5): Blackman-Harris of radius 1.5 px in both renderers, LazyVis with its own
+adaptive anti-aliasing (16 filter-placed samples in pixels marked as edges, the centre elsewhere). Nothing
+is left out: both average the edges. LazyVis' edge pixels are a 16-sample estimate, 4.7% (boxes) and 13%
+(checker) RMS noise against Cycles' 0.4% at 8192 samples, so against Cycles alone the ratio is 10 and 33;
+that noise is measured from two LazyVis seeds and joins the floor (as for glossy MC), and the pixels shaded
+at their centre only must on their own stay within Cycles' noise (``test_default_filter_matches_cycles``).
+With 256 samples in every pixel the boxes' ratio against the combined floor is 1.09 (LazyVis' noise 0.6%).
 """
 
 from __future__ import annotations
@@ -81,6 +97,7 @@ BIAS_LIMIT = 0.01
 SILHOUETTE_REACH = 0.02
 DEPTH_STEP = 0.005    # relative depth change (a slanted plane changes ~1e-4 over the reach)
 NORMAL_STEP = math.cos(math.radians(1.0))  # smooth shading turns the normal ~0.1 degree over the reach
+TEXEL_STEP = 0.25     # relative radiance change over the reach on a textured surface (a penumbra: < 2%)
 INDEX = agreement_scenes.REFERENCES / "references.json"
 
 
@@ -125,6 +142,7 @@ def references(case) -> tuple[np.ndarray, np.ndarray]:
         f"{entry['source']} changed since its Cycles reference was made: run "
         f"tools/make_cycles_references.py {case.name} (and commit tests/references/)")
     assert tuple(entry["resolution"]) == case.resolution
+    assert entry.get("filter_width", agreement_scenes.POINT_FILTER) == case.filter_width
     images = []
     for path in case.reference_paths():
         channels = read_exr(path)
@@ -133,14 +151,16 @@ def references(case) -> tuple[np.ndarray, np.ndarray]:
     return images[0], images[1]
 
 
-def render_lazyvis(case, integrator, monkeypatch, tmp_path) -> np.ndarray:
-    """LazyVis' image (H, W, 3) of ``case`` through Blender, point-sampled."""
+def render_lazyvis(case, integrator, monkeypatch, tmp_path, **settings) -> np.ndarray:
+    """LazyVis' image (H, W, 3) of ``case`` through Blender, point-sampled unless the case has a wider
+    pixel filter (``settings``: more ``scene.lazyvis`` values)."""
     scene = agreement_scenes.load(case)
     scene.render.engine = engine_module.ENGINE_ID
-    for key, value in case.lazyvis.items():
+    for key, value in {**case.lazyvis, **settings}.items():
         setattr(scene.lazyvis, key, value)
     scene.lazyvis.integrator = integrator
-    point_sampled(scene, monkeypatch)
+    if case.point_sampled:
+        point_sampled(scene, monkeypatch)
     return render_to_exr(scene, tmp_path / f"{case.name}.exr")["RGBA"][..., :3]
 
 
@@ -157,6 +177,79 @@ def _is_emitter(obj) -> bool:
     return any(record is not None and record.is_emitter for record in records)
 
 
+def _is_textured(obj) -> bool:
+    records = [read_material(slot.material) for slot in obj.material_slots]
+    return any(record is not None and record.texture is not None for record in records)
+
+
+def _textured(scene) -> list:
+    return [obj for obj in scene.objects if obj.type == "MESH" and _is_textured(obj)]
+
+
+def _shifted(scene, case, offsets):
+    """Iterate over ``offsets`` ((dx, dy) pixels) with every pixel centre moved dx to the right and dy up
+    (the camera's lens shift, in units of the sensor-fitted side); the camera is restored after."""
+    camera = scene.camera.data
+    width, height = case.resolution
+    unit = width if camera.sensor_fit == "HORIZONTAL" else height if camera.sensor_fit == "VERTICAL" \
+        else max(width, height)
+    base = camera.shift_x, camera.shift_y
+    try:
+        for dx, dy in offsets:
+            camera.shift_x, camera.shift_y = base[0] + dx / unit, base[1] + dy / unit
+            yield
+    finally:
+        camera.shift_x, camera.shift_y = base
+
+
+def _cross(reach):
+    """The centre, then ``reach`` pixels right, left, up and down."""
+    return [(0.0, 0.0), (reach, 0.0), (-reach, 0.0), (0.0, reach), (0.0, -reach)]
+
+
+def _point_sampled_scene(case, monkeypatch):
+    """``case`` loaded for LazyVis with its settings, shading pixel centres."""
+    scene = agreement_scenes.load(case)
+    scene.render.engine = engine_module.ENGINE_ID
+    for key, value in case.lazyvis.items():
+        setattr(scene.lazyvis, key, value)
+    point_sampled(scene, monkeypatch)
+    return scene
+
+
+def _renders(scene, case, offsets, tmp_path) -> list[np.ndarray]:
+    """LazyVis' images (H, W, 3) float64 of ``scene`` with the pixel centres moved by each offset."""
+    return [render_to_exr(scene, tmp_path / "shifted.exr")["RGBA"][..., :3].astype(np.float64)
+            for _ in _shifted(scene, case, offsets)]
+
+
+STRAY_POSITIONS = 4  # stray positions averaged per axis (26 change the textured case's ratio by 0.02)
+
+
+def with_stray_samples(case, ours, monkeypatch, tmp_path) -> np.ndarray:
+    """LazyVis' point-sampled image ``ours`` (H, W, 3) as Cycles' filter of width 0.01 sees it, on scenes
+    with textures.
+
+    Per axis 1 sample in 1023 is a stray (core/film.py): it lands uniformly in [0, 0.51] pixel from the
+    pixel's left (x) or bottom (y) edge, instead of within 0.01 pixel of the centre. Next to a texel edge
+    of the checker (36:1 in linear light) those strays move a dark pixel by up to 3% and a bright one by
+    0.1%, several times Cycles' noise at 8192 samples over a fifth of the textured case's pixels; on
+    untextured scenes they stay inside the noise (see the module docstring). So the image compared is
+    ``(1 - 2/1023) ours + (mean over the left strays + mean over the lower strays) / 1023``, the strays'
+    means from LazyVis renders with the centres moved to ``STRAY_POSITIONS`` midpoints of [-0.5, 0.01]
+    pixel along each axis. LazyVis' own value keeps 99.8% of the weight: no error of its own can hide in
+    the correction. Scenes without textures: ``ours`` unchanged.
+    """
+    scene = _point_sampled_scene(case, monkeypatch)
+    if not _textured(scene):
+        return ours
+    positions = -0.5 + 0.51 * (np.arange(STRAY_POSITIONS) + 0.5) / STRAY_POSITIONS
+    left = np.mean(_renders(scene, case, [(d, 0.0) for d in positions], tmp_path), axis=0)
+    below = np.mean(_renders(scene, case, [(0.0, d) for d in positions], tmp_path), axis=0)
+    ours = np.asarray(ours, np.float64)
+    return ours + (left - ours) / 1023.0 + (below - ours) / 1023.0
+
+
 def excluded_pixels(case, monkeypatch, tmp_path, reach: float = SILHOUETTE_REACH):
     """Pixels Cycles' footprint legitimately mixes: (H, W) bool near edges, (H, W) bool at emitters, and
     the (H, W, 3) normal seen at each pixel centre (zero on the background).
@@ -167,30 +260,34 @@ def excluded_pixels(case, monkeypatch, tmp_path, reach: float = SILHOUETTE_REACH
       left, right, up and down (lights hidden, so only camera rays are traced), and a pixel whose depth,
       normal or coverage changes is near an edge (a reach of 0.02 catches every edge crossing the
       +-0.01 pixel square the samples fall in).
+    - At a texel edge: an Image Texture with Closest interpolation steps from one texel's colour to the
+      next, an edge in the image as sharp as a silhouette, which the geometry probes above do not see.
+      Where a textured object is seen at the pixel centre, the same lens shifts are applied to a full
+      LazyVis render (lights on): a pixel whose radiance changes by more than ``TEXEL_STEP`` of the
+      brighter value (and by more than 1% of the image's mean, which leaves out near-black pixels at
+      an umbra's edge) is next to a texel edge. On the textured case the checker's steps change by 97%
+      and the next largest change, in a penumbra, is 19%: 32 pixels (0.35%), counted as edges.
     - At an emitter seen by the camera: 1 in 1023 of Cycles' samples lands anywhere in the pixel's
       left or lower half (see the module docstring). Against an emitter 200 times brighter than its
       surroundings that one sample is far above the noise, so the emitter's pixels and their 8 neighbours
       are left out (found with a render in which only the emitting meshes are visible).
     """
-    scene = agreement_scenes.load(case)
-    scene.render.engine = engine_module.ENGINE_ID
-    point_sampled(scene, monkeypatch)
+    scene = _point_sampled_scene(case, monkeypatch)
+    textured = _textured(scene)
+    steps = None
+    if textured:
+        shots = _renders(scene, case, _cross(reach), tmp_path)
+        steps = np.zeros(shots[0].shape[:2], bool)
+        for shot in shots[1:]:
+            change = np.abs(shot - shots[0]).max(axis=2)
+            steps |= (change > TEXEL_STEP * np.maximum(shot, shots[0]).max(axis=2)) & (change > 0.01 * shots[0].mean())
     for obj in scene.objects:
         if obj.type == "LIGHT":
             obj.hide_render = True
     layer = scene.view_layers[0]
     layer.use_pass_z = layer.use_pass_normal = True
     prefix = layer.name + "."
-    camera = scene.camera.data
-    width, height = case.resolution
-    unit = width if camera.sensor_fit == "HORIZONTAL" else height if camera.sensor_fit == "VERTICAL" \
-        else max(width, height)  # lens shift is in units of the sensor-fitted side
-    base = camera.shift_x, camera.shift_y
-    probes = []
-    for dx, dy in ((0, 0), (1, 0), (-1, 0), (0, 1), (0, -1)):
-        camera.shift_x, camera.shift_y = base[0] + dx * reach / unit, base[1] + dy * reach / unit
-        probes.append(_probe(scene, tmp_path, prefix))
-    camera.shift_x, camera.shift_y = base
+    probes = [_probe(scene, tmp_path, prefix) for _ in _shifted(scene, case, _cross(reach))]
     depth, normal, covered = probes[0]
     edges = np.zeros(depth.shape, bool)
     for other_depth, other_normal, other_covered in probes[1:]:
@@ -198,6 +295,13 @@ def excluded_pixels(case, monkeypatch, tmp_path, reach: float = SILHOUETTE_REACH
         both = covered & other_covered
         edges |= both & (np.abs(other_depth - depth) > DEPTH_STEP * np.abs(depth))
         edges |= both & (np.sum(other_normal * normal, axis=2) < NORMAL_STEP)
+    if textured:
+        hidden = {obj.name: obj.hide_render for obj in scene.objects}
+        for obj in scene.objects:
+            obj.hide_render = obj.type != "CAMERA" and obj not in textured
+        edges |= steps & _probe(scene, tmp_path, prefix)[2]
+        for obj in scene.objects:
+            obj.hide_render = hidden[obj.name]
 
     at_emitters = np.zeros(depth.shape, bool)
     emitters = [obj for obj in scene.objects if obj.type == "MESH" and _is_emitter(obj)]
@@ -212,8 +316,10 @@ def excluded_pixels(case, monkeypatch, tmp_path, reach: float = SILHOUETTE_REACH
 
 
 KNOWN_DIFFERENCES = {"suzanne_terminator_offset"}
+GLOSSY_CASES = [case for case in agreement_scenes.CASES if case.name.startswith("glossy_")]
+FILTERED_CASES = [case for case in agreement_scenes.CASES if not case.point_sampled]
 CASES = [pytest.param(case, "analytic", id=f"{case.name}-analytic") for case in agreement_scenes.CASES
-         if case.name not in KNOWN_DIFFERENCES]
+         if case.name not in KNOWN_DIFFERENCES and case not in GLOSSY_CASES and case not in FILTERED_CASES]
 CASES += [pytest.param(case, "reference", id=f"{case.name}-reference")
           for case in agreement_scenes.CASES if case.reference_integrator]
 
@@ -224,11 +330,42 @@ def test_lazyvis_matches_cycles_within_its_noise(addon, case, integrator, monkey
     ours = render_lazyvis(case, integrator, monkeypatch, tmp_path)
     assert ours.shape == first.shape, f"LazyVis rendered {ours.shape}, the reference is {first.shape}"
     assert first.mean() > 0.0 and np.isfinite(ours).all()
+    ours = with_stray_samples(case, ours, monkeypatch, tmp_path)
     edges, at_emitters, _ = excluded_pixels(case, monkeypatch, tmp_path)
     assert edges.mean() <= 0.05, f"{edges.sum()} of {edges.size} pixels are next to an edge: too many to leave out"
     stats = agreement(ours, first, second, ~(edges | at_emitters))
     print(describe(f"{case.name} ({integrator}, {stats['excluded']} pixels left out)", stats))
     assert stats["ratio"] <= RATIO_LIMIT and abs(stats["bias"]) < BIAS_LIMIT, describe(case.name, stats)
+
+
+@pytest.mark.parametrize("case", FILTERED_CASES, ids=[case.name for case in FILTERED_CASES])
+def test_default_filter_matches_cycles(addon, case, monkeypatch, tmp_path):
+    """Blender's default pixel filter (Blackman-Harris, 1.5 px) in both renderers, LazyVis with its own
+    anti-aliasing defaults (16 edge samples, adaptive): no pixel left out.
+
+    LazyVis' edge pixels are a 16-sample estimate of the filtered value, so they are noisy and their noise
+    joins Cycles' in the floor (measured from two LazyVis seeds, as for glossy MC):
+    RMS(L - A) <= 1.5 * sqrt(s_Cycles^2 + s_LazyVis^2). That floor is dominated by the edges and would hide a
+    wrong value in the pixels LazyVis shades at their centre only (identical in both seeds: not marked as
+    edges). Those must be within Cycles' own noise: their error, RMS over the image, at most
+    sqrt(1.5^2 - 1) = 1.12 times Cycles' noise (the share of the ratio test's budget an exact image leaves).
+    A missed edge fails this: before the frame's outermost pixels were anti-aliased, a floor ending just
+    below the frame left the boxes' bottom row 19% too bright, 3.6 times the noise."""
+    first, second = references(case)
+    ours = [render_lazyvis(case, "analytic", monkeypatch, tmp_path, seed=seed).astype(np.float64) for seed in (1, 2)]
+    assert ours[0].shape == first.shape and np.isfinite(ours[0]).all()
+    stats = agreement(ours[0], first, second)
+    noise = stats["relative_noise"] * stats["mean"]
+    own_noise = math.sqrt(np.mean((ours[0] - ours[1]) ** 2) / 2.0)
+    ratio = stats["relative_rmse"] * stats["mean"] / math.hypot(noise, own_noise)
+    centre = (ours[0] == ours[1]).all(axis=2)
+    centre_error = math.sqrt(np.sum((ours[0] - first)[centre] ** 2) / ours[0].size) / noise
+    print(describe(f"{case.name} (filter {case.filter_width}, 16 edge samples)", stats),
+          f"LazyVis' own noise {100 * own_noise / stats['mean']:.3f}%, combined ratio {ratio:.2f}; "
+          f"{100 * centre.mean():.0f}% of the pixels shaded at the centre, their error "
+          f"{centre_error:.2f} x Cycles' noise", sep="\n")
+    assert ratio <= RATIO_LIMIT and abs(stats["bias"]) < BIAS_LIMIT, describe(case.name, stats)
+    assert centre_error <= math.sqrt(RATIO_LIMIT ** 2 - 1.0), f"{case.name}: centre-shaded pixels {centre_error:.2f}"
 
 
 def test_shadow_terminator_offset_is_the_one_known_difference(addon, monkeypatch, tmp_path):
@@ -272,3 +409,44 @@ def test_references_are_small_and_documented():
         assert entry["samples"] >= 4096 and entry["resolution"] == list(case.resolution)
         for path in case.reference_paths():
             assert path.stat().st_size < 300 * 1024, path
+
+
+# Glossy (issue 4). Monte Carlo over the visible pieces is unbiased for Cycles' BSDF, so it must agree within
+# the two renderers' noise: LazyVis' own MC noise (from two of its seeds) joins Cycles' in the floor.
+# The LTC integrator approximates the lobe's shape; its error against Cycles is measured per roughness,
+# documented in the README and held to the limits below (relative RMSE and bias, with a margin).
+GLOSSY_MC_SAMPLES = 256
+# Measured (relative RMSE, bias): 0.1: 0.99%, -0.06%; 0.3: 6.0%, -1.3%; 0.5: 5.7%, -0.5%; 0.8: 5.3%, +0.6%.
+# The floor is seen at 55-75 degrees, where the published LTC fit's lobe shape is a few percent off
+# (tests/test_ltc.py); the Fresnel is evaluated at each piece's lobe-weighted direction (with the lobe's
+# mean Fresnel instead the errors were 3.6%, 13.3%, 14.2% and 9.4%).
+LTC_LIMITS = {0.1: (0.015, 0.005), 0.3: (0.075, 0.02), 0.5: (0.07, 0.01), 0.8: (0.065, 0.01)}
+
+
+@pytest.mark.parametrize("case", GLOSSY_CASES, ids=[case.name for case in GLOSSY_CASES])
+def test_glossy_monte_carlo_matches_cycles_within_the_noise(addon, case, monkeypatch, tmp_path):
+    first, second = references(case)
+    ours = [render_lazyvis(case, "analytic", monkeypatch, tmp_path, glossy_integrator="mc",
+                           mc_samples=GLOSSY_MC_SAMPLES, seed=seed) for seed in (1, 2)]
+    edges, at_emitters, _ = excluded_pixels(case, monkeypatch, tmp_path)
+    mask = ~(edges | at_emitters)
+    stats = agreement(ours[0], first, second, mask)
+    own = agreement(ours[1], ours[0], ours[0], mask)  # RMSE between LazyVis' two seeds
+    own_noise = own["relative_rmse"] * own["mean"] / math.sqrt(2.0)
+    floor = math.hypot(stats["relative_noise"] * stats["mean"], own_noise)
+    ratio = stats["relative_rmse"] * stats["mean"] / floor
+    print(describe(f"{case.name} (glossy MC, {GLOSSY_MC_SAMPLES} samples)", stats),
+          f"LazyVis' own noise {100 * own_noise / stats['mean']:.3f}%, combined ratio {ratio:.2f}")
+    assert ratio <= RATIO_LIMIT and abs(stats["bias"]) < BIAS_LIMIT, describe(case.name, stats)
+
+
+@pytest.mark.parametrize("case", GLOSSY_CASES, ids=[case.name for case in GLOSSY_CASES])
+def test_glossy_ltc_error_against_cycles_is_as_documented(addon, case, monkeypatch, tmp_path):
+    first, second = references(case)
+    ours = render_lazyvis(case, "analytic", monkeypatch, tmp_path, glossy_integrator="ltc")
+    edges, at_emitters, _ = excluded_pixels(case, monkeypatch, tmp_path)
+    stats = agreement(ours, first, second, ~(edges | at_emitters))
+    roughness = dict(case.options)["roughness"]
+    rmse_limit, bias_limit = LTC_LIMITS[roughness]
+    print(describe(f"{case.name} (LTC)", stats))
+    assert stats["relative_rmse"] <= rmse_limit and abs(stats["bias"]) <= bias_limit, describe(case.name, stats)
