@@ -1,6 +1,7 @@
 """Anti-aliasing: the extended fill's lists hold at sub-pixel points, and adaptive samples remove edge error."""
 
 import numpy as np
+import pytest
 
 from lazyvis_addon.core import Progress, Settings, render
 from lazyvis_addon.core import demo_scenes
@@ -86,3 +87,23 @@ def test_adaptive_antialiasing_removes_most_edge_error():
     print(f"edge error: 1 sample {error_one:.3%}, adaptive {error_adaptive:.3%}, "
           f"{adaptive.stats['aa_pixels']} pixels refined")
     assert 0 < adaptive.stats["aa_pixels"] < 0.7 * 64 * 64
+
+
+def test_samples_spread_as_far_as_cycles_pixel_filter_type():
+    """Box: every sample in its own pixel (Cycles forces width 1); Blackman-Harris reaches the width;
+    Gaussian 1.5 times the width (Cycles tabulates it over 3 widths)."""
+    scene = plane_under_light(resolution=16).validated()
+    tracer = RayTracer(scene.triangles)
+    pixels = np.arange(16 * 16)
+    reach = {}
+    for filter_type in ("BOX", "BLACKMAN_HARRIS", "GAUSSIAN"):
+        settings = Settings(aa_samples=64, filter_width=2.0, filter_type=filter_type)
+        sub, landing, _ = subpixel_samples(scene, tracer, scene_extent(scene), pixels, settings,
+                                           _global_pixels(scene.camera))
+        parent = np.stack([pixels % 16, pixels // 16], axis=1).repeat(64, axis=0)
+        reach[filter_type] = np.abs(landing - parent).max()
+        assert reach[filter_type] <= np.ceil(settings.filter_reach - 0.5)
+    assert reach["BOX"] == 0
+    assert reach["BLACKMAN_HARRIS"] == 2 and reach["GAUSSIAN"] == 3
+    with pytest.raises(ValueError, match="filter_type"):
+        Settings(filter_type="MITCHELL")

@@ -101,7 +101,7 @@ class LazyVisViewLayerSettings(bpy.types.PropertyGroup):
 
 def settings_from_scene(scene) -> Settings:
     """The core ``Settings`` for a Blender scene: every ``scene.lazyvis`` property named like a Settings
-    field, plus frame, film transparency, filter size and threads from Blender's own render settings."""
+    field, plus frame, film transparency, the pixel filter and threads from Blender's own render settings."""
     props = scene.lazyvis
     values = {name: getattr(props, name) for name in Settings.field_names()
               if name in LazyVisSceneSettings.__annotations__}
@@ -109,9 +109,19 @@ def settings_from_scene(scene) -> Settings:
     # Blender keeps float properties in float32: 0.1 comes back as 0.10000000149. Six digits are the UI's.
     values = {name: float(f"{value:.6g}") if isinstance(value, float) else value for name, value in values.items()}
     values.update(frame=scene.frame_current, transparent_background=scene.render.film_transparent,
-                  filter_width=float(scene.render.filter_size),
+                  **pixel_filter(scene),
                   threads=0 if scene.render.threads_mode == 'AUTO' else scene.render.threads)
     return Settings(**values)
+
+
+def pixel_filter(scene) -> dict:
+    """``filter_width`` and ``filter_type`` as Cycles reads them (Film > Pixel Filter), so that both engines
+    filter a .blend alike. ``render.filter_size`` is EEVEE's and independent: a .blend may carry 1.5 in
+    one and 0.01 in the other. Without the Cycles add-on its defaults apply."""
+    cycles = getattr(scene, "cycles", None)
+    if cycles is None:
+        return {"filter_width": 1.5, "filter_type": "BLACKMAN_HARRIS"}
+    return {"filter_width": float(f"{cycles.filter_width:.6g}"), "filter_type": str(cycles.pixel_filter_type)}
 
 
 classes = (LazyVisSceneSettings, LazyVisViewLayerSettings)

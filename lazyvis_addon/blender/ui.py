@@ -124,7 +124,12 @@ class LAZYVIS_RENDER_PT_film(LazyVisPanel, bpy.types.Panel):
         layout = self.layout
         layout.use_property_split = True
         layout.use_property_decorate = False
-        layout.prop(context.scene.render, "filter_size")
+        cycles = getattr(context.scene, "cycles", None)
+        if cycles is not None:  # Cycles' pixel filter, shared with Cycles (see properties.pixel_filter)
+            layout.prop(cycles, "pixel_filter_type", text="Pixel Filter")
+            row = layout.row()
+            row.active = cycles.pixel_filter_type != 'BOX'
+            row.prop(cycles, "filter_width", text="Width")
         layout.prop(context.scene.render, "film_transparent", text="Transparent")
 
 

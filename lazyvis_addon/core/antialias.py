@@ -39,7 +39,7 @@ def refine_pixels(scene: Scene, surface, radiance: np.ndarray, shape: tuple[int,
     seen = radiance + surface.emission
     grids = (surface.index_triangle.reshape(height, width), material.reshape(height, width),
              surface.geometric_normal.reshape(height, width, 3), seen.reshape(height, width, 3))
-    reaches_out = settings.filter_width > 0.5  # samples leave the pixel: the ring outside matters
+    reaches_out = settings.filter_reach > 0.5  # samples leave the pixel: the ring outside matters
     if reaches_out:
         grids = _with_outside_ring(scene, grids, tracer, settings)
     mask = refine_mask(*grids, relative_threshold=settings.aa_threshold,
@@ -118,7 +118,8 @@ def subpixel_samples(scene: Scene, tracer, extent: float, pixels: np.ndarray, se
     stratum = np.tile(np.arange(samples), len(pixels))
     sample = first + stratum
     u = rng.uniforms(settings.seed, settings.frame, rng.STREAM_FILM, pixel_global[parent], sample, 2)
-    offset = filter_offsets(rng.stratified_2d(u, stratum, samples), settings.filter_width)
+    offset = filter_offsets(rng.stratified_2d(u, stratum, samples), settings.effective_filter_width,
+                            settings.filter_type)
     origins, directions = camera_rays(camera, xs[parent], ys[parent], offset)
     hits = tracer.intersect(origins, directions, None)
     surface = shade_hits(scene, origins, directions, hits.index_triangle, hits.u, hits.v, extent)

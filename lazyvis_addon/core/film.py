@@ -72,7 +72,7 @@ def filter_function(x, width: float, filter_type: str = "BLACKMAN_HARRIS") -> np
     (Blackman-Harris), 1.5 width (Gaussian, sigma = width / 4) or width / 2 (box).
     """
     x = np.asarray(x, dtype=np.float64)
-    extent = _half_extent(width, filter_type)
+    extent = half_extent(width, filter_type)
     if filter_type == "BLACKMAN_HARRIS":
         return blackman_harris(x, width)
     if filter_type == "GAUSSIAN":
@@ -82,7 +82,7 @@ def filter_function(x, width: float, filter_type: str = "BLACKMAN_HARRIS") -> np
     return np.where(np.abs(x) <= extent, value, 0.0)
 
 
-def _half_extent(width: float, filter_type: str) -> float:
+def half_extent(width: float, filter_type: str) -> float:
     """Half the support Cycles tabulates for a filter (pixels)."""
     if not width > 0.0:
         raise ValueError(f"filter width must be positive, got {width}")
@@ -114,7 +114,7 @@ def filter_table(width: float, filter_type: str = "BLACKMAN_HARRIS", size: int =
 
 @lru_cache(maxsize=16)
 def _table(width: float, filter_type: str, size: int) -> np.ndarray:
-    extent = _half_extent(width, filter_type)
+    extent = half_extent(width, filter_type)
     # CDF of |f| over [0, extent] from size - 1 samples (left Riemann sum), size entries, normalised.
     samples = extent * np.arange(size - 1) / (size - 2)
     cdf = np.concatenate([[0.0], np.cumsum(np.abs(filter_function(samples, width, filter_type)))])

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
 
+from .film import FILTER_TYPES, half_extent
+
 INTEGRATORS = ("analytic", "reduced_mc", "standard_mc", "reference")
 GLOSSY_INTEGRATORS = ("ltc", "phong", "mc")
 
@@ -47,7 +49,11 @@ class Settings:
         Anti-aliasing: samples for pixels at edges (another polygon, material or a radiance step in
         their neighbourhood), placed by the pixel filter; 1 shades pixel centres only.
     filter_width : float
-        Pixel filter radius in pixels (Blackman-Harris, as Blender's Film > Filter Size; 1.5 default).
+        Pixel filter width in pixels, Cycles' Film > Pixel Filter > Width (``scene.cycles.filter_width``;
+        1.5 default): the Blackman-Harris window's radius.
+    filter_type : str
+        Cycles' pixel filter type: ``"BLACKMAN_HARRIS"`` (default), ``"GAUSSIAN"`` or ``"BOX"`` (Cycles forces
+        a box to width 1: one pixel, nothing borrowed from neighbours).
     aa_threshold : float
         Relative radiance difference between neighbours that marks a pixel for anti-aliasing.
     extend_fill : bool
@@ -88,6 +94,7 @@ class Settings:
     extend_fill: bool = False
     aa_samples: int = 16
     filter_width: float = 1.5
+    filter_type: str = "BLACKMAN_HARRIS"
     aa_threshold: float = 0.1
     seed: int = 0
     frame: int = 0
@@ -110,6 +117,8 @@ class Settings:
             value = getattr(self, name)
             if not isinstance(value, int) or value < 0:
                 raise ValueError(f"{name} must be a non-negative integer, not {value!r}")
+        if self.filter_type not in FILTER_TYPES:
+            raise ValueError(f"filter_type must be one of {', '.join(FILTER_TYPES)}, not {self.filter_type!r}")
         if not (self.filter_width > 0 and self.aa_threshold >= 0):
             raise ValueError("filter_width must be positive and aa_threshold non-negative")
         for name in ("shadow_rays", "mc_samples", "pixel_batch", "aa_samples"):
@@ -127,6 +136,16 @@ class Settings:
     def fills_boundary(self) -> bool:
         """Pass 1 stores pairs in the boundary ring too: asked for, or needed by anti-aliasing."""
         return self.extend_fill or self.aa_samples > 1
+
+    @property
+    def filter_reach(self) -> float:
+        """How far (pixels) a camera sample may land from its pixel's centre: the filter's half support."""
+        return half_extent(self.effective_filter_width, self.filter_type)
+
+    @property
+    def effective_filter_width(self) -> float:
+        """The width Cycles samples with (a box is always 1 pixel wide)."""
+        return 1.0 if self.filter_type == "BOX" else self.filter_width
 
     def replace(self, **changes) -> "Settings":
         """A copy with some fields changed (validated again)."""

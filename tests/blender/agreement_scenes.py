@@ -93,7 +93,7 @@ GLOSSY_ROUGHNESS = (0.1, 0.3, 0.5, 0.8)
 
 # Cycles' smallest filter width (pixels, a radius): every sample within 0.01 px of the pixel centre.
 POINT_FILTER = 0.01
-# Blender's default filter width (Cycles' Film > Pixel Filter > Width, and render.filter_size).
+# Blender's default filter width (Cycles' Film > Pixel Filter > Width).
 DEFAULT_FILTER = 1.5
 
 
@@ -108,7 +108,7 @@ class Case:
     LazyVis' exact reference integrator (slow on big scenes); ``samples_factor``: Cycles samples relative
     to the tool's --samples (the chapel, lit only through a slatted window, is the path tracer's hard
     case: at equal samples its relative noise is ten times the boxes'); ``filter_width``: the pixel
-    filter's radius for both renderers (Cycles' ``cycles.filter_width``, LazyVis' ``render.filter_size``):
+    filter's radius for both renderers (``scene.cycles.filter_width``, read by both):
     POINT_FILTER, the default, is a point sample at each pixel centre and LazyVis shades centres only;
     anything wider is Blackman-Harris and LazyVis renders with its own anti-aliasing defaults.
     """
@@ -183,6 +183,5 @@ def load(case: Case):
     scene.render.resolution_x, scene.render.resolution_y = case.resolution
     scene.render.resolution_percentage = 100
     scene.render.use_border = False
-    # Both renderers' pixel filter: Cycles reads cycles.filter_width, LazyVis render.filter_size.
-    scene.cycles.filter_width = scene.render.filter_size = case.filter_width
+    scene.cycles.filter_width = case.filter_width  # both renderers' pixel filter
     return scene

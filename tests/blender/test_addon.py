@@ -52,7 +52,7 @@ def test_property_defaults_are_the_settings_defaults(scene):
 
 def test_every_setting_has_a_property_and_reaches_settings(scene):
     """scene.lazyvis maps 1:1 onto Settings (frame, transparency, threads come from Blender's own settings)."""
-    from_blender = {"frame", "transparent_background", "threads", "filter_width"}
+    from_blender = {"frame", "transparent_background", "threads", "filter_width", "filter_type"}
     properties = set(LazyVisSceneSettings.__annotations__)
     assert set(Settings.field_names()) - from_blender <= properties
     props = scene.lazyvis
@@ -70,13 +70,16 @@ def test_every_setting_has_a_property_and_reaches_settings(scene):
     scene.frame_current = 42
     scene.render.film_transparent = True
     scene.render.threads_mode, scene.render.threads = "FIXED", 3
-    scene.render.filter_size = 0.75
+    scene.cycles.filter_width = 0.75
+    scene.cycles.pixel_filter_type = "GAUSSIAN"
+    scene.render.filter_size = 2.0  # EEVEE's, not read
     props.aa_samples = 4
     assert settings_from_scene(scene) == Settings(
         integrator="reduced_mc", glossy_integrator="phong",
         shadow_rays=7, mc_samples=33, connectivity=4, umbra_detection=False, seed=12,
         frame=42, transparent_background=True, memory_budget_mb=512.0, pixel_batch=4096,
-        window_margin=5, threads=3, merge_quads=False, filter_width=0.75, aa_samples=4)
+        window_margin=5, threads=3, merge_quads=False, filter_width=0.75, filter_type="GAUSSIAN",
+        aa_samples=4)
 
 
 def run_python(code: str) -> subprocess.CompletedProcess:

@@ -89,7 +89,6 @@ from blender_helpers import read_exr, render_to_exr  # noqa: E402
 
 from lazyvis_addon.blender import engine as engine_module  # noqa: E402
 from lazyvis_addon.blender.export import read_material  # noqa: E402
-from lazyvis_addon.core.settings import Settings  # noqa: E402
 
 RATIO_LIMIT = 1.5
 BIAS_LIMIT = 0.01
@@ -103,14 +102,7 @@ INDEX = agreement_scenes.REFERENCES / "references.json"
 
 def point_sampled(scene, monkeypatch) -> None:
     """LazyVis shades pixel centres only, like the references (Cycles' filter width 0.01)."""
-    if "aa_samples" not in Settings.field_names():
-        return
-    if "aa_samples" in scene.lazyvis.bl_rna.properties:
-        scene.lazyvis.aa_samples = 1
-        return
-    original = engine_module.settings_from_scene  # anti-aliasing not exposed in Blender yet
-    monkeypatch.setattr(engine_module, "settings_from_scene",
-                        lambda blender_scene: original(blender_scene).replace(aa_samples=1))
+    scene.lazyvis.aa_samples = 1
 
 
 def agreement(ours: np.ndarray, first: np.ndarray, second: np.ndarray, mask: np.ndarray | None = None) -> dict:
