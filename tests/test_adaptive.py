@@ -4,7 +4,7 @@ known, and a brute-force reference over random images."""
 import numpy as np
 import pytest
 
-from lazyvis_addon.core.adaptive import refine_mask
+from lazyvis_addon.core.adaptive import close_holes, refine_mask
 
 UP = np.array([0.0, 0.0, 1.0])
 TILTED = np.array([0.0, 0.6, 0.8])
@@ -128,3 +128,20 @@ def test_shapes_are_checked():
     tri, mat, normal, radiance = flat_image()
     with pytest.raises(ValueError, match="normal"):
         refine_mask(tri, mat, normal[:, :, :2], radiance)
+
+
+def test_close_holes_marks_pixels_mostly_surrounded_by_marks():
+    mask = np.zeros((5, 6), bool)
+    mask[0:3, 0:3] = True
+    mask[1, 1] = False                   # a hole: 8 marked neighbours
+    mask[3:5, 4] = True                  # a column of two: its neighbours see at most 2 marks
+    expected = mask.copy()
+    expected[1, 1] = True                # every other unmarked pixel has at most 3 marked neighbours
+    np.testing.assert_array_equal(close_holes(mask), expected)
+    ring = np.ones((3, 3), bool)
+    ring[1, 1] = False
+    assert close_holes(ring).all()
+    corner = np.zeros((3, 3), bool)
+    corner[0, 1] = corner[1, 0] = corner[1, 1] = True  # (0, 0): 3 of its 3 in-image neighbours marked
+    assert not close_holes(corner)[0, 0]               # outside counts as unmarked
+    assert close_holes(corner, min_marked=3)[0, 0]

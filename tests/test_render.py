@@ -347,6 +347,7 @@ def test_command_line_renders_an_npz_scene_to_a_multichannel_exr(tmp_path):
     expected = render(scene)
     np.testing.assert_array_equal(channels["G"], expected.combined[..., 1])
     np.testing.assert_array_equal(channels["BlockerCount"], expected.blocker_count)
+    np.testing.assert_array_equal(channels["SampleCount"], expected.sample_count)
     assert (tmp_path / "out.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     missing = subprocess.run([sys.executable, "-m", "lazyvis_addon.core", str(tmp_path / "nope.npz"), "-o",
                               str(tmp_path / "x.exr")], cwd=ROOT, capture_output=True, text=True, timeout=120)

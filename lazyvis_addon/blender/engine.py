@@ -27,6 +27,8 @@ PASSES = (
     ("Normal", 3, "XYZ", "VECTOR", lambda layer: layer.use_pass_normal, lambda out: out.normal),
     ("Blocker Count", 1, "X", "VALUE", lambda layer: layer.lazyvis.use_pass_blocker_count,
      lambda out: out.blocker_count[..., None]),
+    ("Sample Count", 1, "X", "VALUE", lambda layer: layer.lazyvis.use_pass_sample_count,
+     lambda out: out.sample_count[..., None]),
 )
 
 

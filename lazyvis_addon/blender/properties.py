@@ -97,6 +97,10 @@ class LazyVisViewLayerSettings(bpy.types.PropertyGroup):
     use_pass_blocker_count: BoolProperty(name="Blocker Count", default=True,
                                          description="Blocker-light pairs found per pixel by pass 1",
                                          update=lambda self, context: context.view_layer.update_render_passes())
+    use_pass_sample_count: BoolProperty(name="Sample Count", default=False,
+                                        description="Camera samples averaged per pixel: Edge Samples where "
+                                                    "anti-aliased, 1 where the centre was shaded alone",
+                                        update=lambda self, context: context.view_layer.update_render_passes())
 
 
 def settings_from_scene(scene) -> Settings:

@@ -172,6 +172,7 @@ class LAZYVIS_VIEWLAYER_PT_passes(LazyVisPanel, bpy.types.Panel):
         col.prop(view_layer, "use_pass_normal")
         col = layout.column(heading="LazyVis", align=True)
         col.prop(view_layer.lazyvis, "use_pass_blocker_count")
+        col.prop(view_layer.lazyvis, "use_pass_sample_count")
 
 
 # -- Light ---------------------------------------------------------------------------------------------

@@ -51,13 +51,15 @@ class ConsoleProgress(Progress):
 
 
 def output_channels(output: RenderOutput) -> dict[str, np.ndarray]:
-    """The EXR channels of a render: R, G, B, A, BlockerCount, Depth, Normal.X/Y/Z, Umbra (lights hidden)."""
+    """The EXR channels of a render: R, G, B, A, BlockerCount, Depth, Normal.X/Y/Z, Umbra (lights hidden),
+    SampleCount (camera samples averaged per pixel)."""
     channels = {name: output.combined[..., index] for index, name in enumerate("RGBA")}
     channels["BlockerCount"] = output.blocker_count.astype(np.float32)
     channels["Depth"] = output.depth
     for index, axis in enumerate("XYZ"):
         channels[f"Normal.{axis}"] = output.normal[..., index]
     channels["Umbra"] = output.umbra.sum(axis=2).astype(np.float32)
+    channels["SampleCount"] = output.sample_count.astype(np.float32)
     return channels
 
 

@@ -70,6 +70,21 @@ def refine_mask(index_triangle: np.ndarray, material_index: np.ndarray, normal: 
     return mask
 
 
+def close_holes(mask: np.ndarray, min_marked: int = 5) -> np.ndarray:
+    """``mask`` (H, W) bool plus every pixel with at least ``min_marked`` of its 8 neighbours marked.
+
+    A pixel whose centre agrees with all its neighbours can still hold what falls between the centres: on
+    the chapel, a sliver of light between two slat shadows, black at every centre and at 6% in Cycles, left
+    a pixel unmarked inside a ring of marked ones. Neighbours outside the image count as unmarked.
+    """
+    mask = np.asarray(mask, dtype=bool)
+    padded = np.pad(mask, 1).astype(np.int8)
+    height, width = mask.shape
+    marked = sum(padded[1 + dr:1 + dr + height, 1 + dc:1 + dc + width]  # 8 shifted views, not a pixel loop
+                 for dr in (-1, 0, 1) for dc in (-1, 0, 1) if dr or dc)
+    return mask | (marked >= min_marked)
+
+
 def _pair_slices(height: int, width: int, dr: int, dc: int):
     """Slices (a, b) such that pixel a[k] and b[k] are neighbours at offset (dr, dc); (None, None) if empty."""
     if dr >= height or abs(dc) >= width:

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import rng
-from .adaptive import refine_mask
+from .adaptive import close_holes, refine_mask
 from .blocker_map import BlockerMap
 from .camera import camera_rays, window_pixels
 from .film import filter_offsets
@@ -44,6 +44,7 @@ def refine_pixels(scene: Scene, surface, radiance: np.ndarray, shape: tuple[int,
         grids = _with_outside_ring(scene, grids, tracer, settings)
     mask = refine_mask(*grids, relative_threshold=settings.aa_threshold,
                        radiance_floor=1e-4 * max(float(seen.max()), 1e-30))
+    mask = close_holes(mask)
     if reaches_out:
         # An edge just outside the frame (a floor ending half a pixel below the bottom row) is averaged in
         # by the filter: without the ring, Cycles' bottom row of floating_boxes at 96 px was 16% darker.

@@ -39,6 +39,8 @@ class Settings:
         (beyond the paper). The error from missed blockers falls towards zero as they grow; 0 (the default)
         turns verification off. Only the window's pixels are verified, so a window equals the full frame
         exactly only without verification.
+        Anti-aliasing samples are always verified, with 16 rays (``render.SAMPLE_VERIFY_RAYS``): a
+        pixel's list need not hold at a sample that sees another surface than the pixel's centre.
     refine_rounds : int
         How many times verification may add blockers and re-shade.
     mc_samples : int

@@ -32,6 +32,7 @@ class FakeOutput:
         self.depth = 100.0 + ys
         self.normal = np.stack([xs, ys, -np.ones_like(xs)], axis=2)
         self.blocker_count = (xs + 1000 * ys).astype(np.int32)
+        self.sample_count = (1 + xs % 2 * 15).astype(np.int32)
         self.umbra = np.zeros(xs.shape + (0,), bool)
         self.warnings, self.stats = [], {"seconds": 0.0}
 
@@ -64,6 +65,7 @@ def test_passes_are_written_top_row_first_in_the_exr(scene, fake_core, tmp_path)
     simple_scene(scene)
     layer = scene.view_layers[0]
     layer.use_pass_z = layer.use_pass_normal = True
+    layer.lazyvis.use_pass_sample_count = True
     channels = render_to_exr(scene, tmp_path / "passes.exr", multilayer=True)
     prefix = layer.name + "."
     combined = channels[prefix + "Combined"]
@@ -75,6 +77,7 @@ def test_passes_are_written_top_row_first_in_the_exr(scene, fake_core, tmp_path)
     np.testing.assert_array_equal(channels[prefix + "Depth.Z"], 100.0 + ys)
     np.testing.assert_array_equal(channels[prefix + "Normal.Y"], ys)
     np.testing.assert_array_equal(channels[prefix + "Blocker Count.X"], xs + 1000 * ys)
+    np.testing.assert_array_equal(channels[prefix + "Sample Count.X"], 1 + xs % 2 * 15)
 
 
 def test_every_view_layer_gets_its_own_render(scene, fake_core, tmp_path):
