@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from lazyvis_addon.core.geometry import (blocker_in_front_of_light, clip_convex, cones_overlap, polygon_area_2d,
-                                         projected_solid_angle)
+                                         projected_solid_angle, split_convex)
 
 SQUARE = np.array([[0.5, -0.5, 1.0], [0.5, 0.5, 1.0], [-0.5, 0.5, 1.0], [-0.5, -0.5, 1.0]])
 
@@ -93,3 +93,17 @@ def test_blocker_beyond_light_is_cut_away():
                                                origin, normal, np.ones(2))
     assert count[0] == 0
     assert count[1] == 4 and (polygon[1, :4, 2] <= 1.0 + 1e-12).all()
+
+
+def test_split_survives_vertices_alternating_within_rounding_of_the_line():
+    """A square whose bottom edge carries vertices 1e-17 above and below the cutting line y = 0: six
+    crossings, which overflowed the output (an IndexError mid-render). It is kept whole, inside."""
+    square = np.array([[[0.0, -1e-17], [0.25, 1e-17], [0.5, -1e-17], [0.75, 1e-17], [1.0, -1e-17],
+                        [1.0, 1.0], [0.0, 1.0]]])
+    count = np.array([7])
+    inside, inside_count, outside, outside_count = split_convex(square, count, square[..., 1].copy())
+    assert inside_count[0] == 7 and outside_count[0] == 0
+    np.testing.assert_array_equal(inside[0, :7], square[0])
+    # An ordinary cut still splits.
+    inside, inside_count, outside, outside_count = split_convex(square, count, square[..., 1] - 0.5)
+    assert inside_count[0] == 4 and outside_count[0] == 7
