@@ -131,6 +131,31 @@ def subpixel_samples(scene: Scene, tracer, extent: float, pixels: np.ndarray, se
     return surface, landing, sample_global
 
 
+def foreign_samples(sub, landing: np.ndarray, grid_surface, grid: tuple[int, int, int, int]) -> np.ndarray:
+    """Which samples see another surface than the centre of the pixel they land in.
+
+    A pixel's blocker list is made for the surface seen at its centre (the extended fill makes it hold
+    across the pixel on that surface), not for a slat's face or a nearer object seen between two centres.
+
+    Parameters
+    ----------
+    sub : SurfacePoints of the S samples; landing : (S, 2) full-frame (x, y) of the pixel each lands in.
+    grid_surface : SurfacePoints of pass 1's pixels over ``grid`` = (x0, y0, x1, y1) (row-major).
+
+    Returns
+    -------
+    (S,) bool: the sample hits something and its landing pixel's centre sees nothing, or a plane with
+    another geometric normal (more than 2.6 degrees), or the sample lies off that plane (a parallel step).
+    """
+    x0, y0, x1, y1 = grid
+    cell = (np.clip(landing[:, 1], y0, y1 - 1) - y0) * (x1 - x0) + np.clip(landing[:, 0], x0, x1 - 1) - x0
+    normal = grid_surface.geometric_normal[cell]
+    step = sub.position - grid_surface.position[cell]
+    other_normal = np.einsum("nk,nk->n", normal, sub.geometric_normal) < 0.999
+    off_plane = np.abs(np.einsum("nk,nk->n", normal, step)) > 1e-3 * np.linalg.norm(step, axis=1)
+    return sub.hit & (~grid_surface.hit[cell] | other_normal | off_plane)
+
+
 def inherit_blockers(blockers: BlockerMap, grid: tuple[int, int, int, int], landing: np.ndarray,
                      n_lights: int) -> BlockerMap:
     """A blocker map for samples: each sample gets the list of the pixel it lands in.
