@@ -141,3 +141,19 @@ def test_samples_are_verified_where_their_pixel_list_does_not_hold(monkeypatch):
     print(f"refined pixels against exact lists: unverified {unverified:.3%}, foreign samples verified "
           f"{error(foreign):.3%}, every sample {error(every):.3%}")
     assert error(every) < 0.001 and error(foreign) < 0.004 and unverified > 5 * error(foreign)
+
+
+def test_command_line_passes_the_anti_aliasing_settings(tmp_path):
+    from lazyvis_addon.core.__main__ import main
+    from lazyvis_addon.core.exr import read_exr
+    scene = demo_scenes.floating_boxes(resolution=24, n_boxes=4)
+    scene.save_npz(tmp_path / "boxes.npz")
+    flags = ["--edge-samples", "4", "--filter-width", "2.0", "--filter-type", "GAUSSIAN", "--verify-rays", "2"]
+    assert main([str(tmp_path / "boxes.npz"), "-o", str(tmp_path / "out.exr")] + flags) == 0
+    channels = read_exr(tmp_path / "out.exr")
+    expected = render(scene, Settings(aa_samples=4, filter_width=2.0, filter_type="GAUSSIAN", verify_rays=2))
+    np.testing.assert_array_equal(channels["R"], expected.combined[..., 0])
+    np.testing.assert_array_equal(channels["SampleCount"], expected.sample_count)
+    assert set(np.unique(channels["SampleCount"])) == {1.0, 4.0}
+    default = render(scene, Settings())
+    assert not np.array_equal(default.combined[..., 0], expected.combined[..., 0])

@@ -15,6 +15,7 @@ import numpy as np
 
 from . import demo_scenes
 from .exr import write_exr
+from .film import FILTER_TYPES
 from .png import linear_to_srgb8, write_png
 from .progress import Progress, RenderCancelled
 from .render import RenderOutput, render
@@ -77,6 +78,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--glossy-integrator", choices=GLOSSY_INTEGRATORS, default=defaults.glossy_integrator,
                         help="how GGX lobes are integrated over the visible pieces")
     parser.add_argument("--shadow-rays", type=int, default=defaults.shadow_rays)
+    parser.add_argument("--verify-rays", type=int, default=defaults.verify_rays,
+                        help="verification rays per pixel and light (0: off)")
+    parser.add_argument("--edge-samples", type=int, default=defaults.aa_samples,
+                        help="anti-aliasing samples in edge pixels (1: pixel centres only)")
+    parser.add_argument("--filter-width", type=float, default=defaults.filter_width,
+                        help="pixel filter width in pixels, as Cycles' Film > Pixel Filter > Width")
+    parser.add_argument("--filter-type", choices=FILTER_TYPES, default=defaults.filter_type)
     parser.add_argument("--samples", type=int, default=defaults.mc_samples, help="Monte Carlo samples per light")
     parser.add_argument("--connectivity", type=int, choices=(4, 8), default=defaults.connectivity)
     parser.add_argument("--no-umbra", action="store_true", help="disable umbra detection")
@@ -101,7 +109,9 @@ def main(argv=None) -> int:
             scene.camera = Camera(cam.world_from_camera, cam.width, cam.height, cam.projection, cam.screen_window,
                                   tuple(args.window))
         settings = Settings(integrator=args.integrator, glossy_integrator=args.glossy_integrator,
-                            shadow_rays=args.shadow_rays, mc_samples=args.samples,
+                            shadow_rays=args.shadow_rays, verify_rays=args.verify_rays, mc_samples=args.samples,
+                            aa_samples=args.edge_samples, filter_width=args.filter_width,
+                            filter_type=args.filter_type,
                             connectivity=args.connectivity, umbra_detection=not args.no_umbra, seed=args.seed,
                             memory_budget_mb=args.memory_mb)
         progress = ConsoleProgress()
