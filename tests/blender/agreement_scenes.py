@@ -162,6 +162,8 @@ CASES = (
          lazyvis=COMPLETE_BLOCKER_MAP["textured"], filter_width=DEFAULT_FILTER),
     Case("chapel_filter1.5", (128, 96), blend="sample_blends/chapel.blend", lazyvis=COMPLETE_BLOCKER_MAP["chapel"],
          samples_factor=4, filter_width=DEFAULT_FILTER),
+    Case("suzanne_filter1.5", (96, 96), blend="sample_blends/suzanne.blend", lazyvis=COMPLETE_BLOCKER_MAP["suzanne"],
+         filter_width=DEFAULT_FILTER),
 ) + tuple(Case(f"glossy_{roughness}", (96, 72), build=glossy_floor, options=(("roughness", roughness),),
                samples_factor=4 if roughness < 0.2 else 1)  # a sharp highlight is the path tracer's hard case
           for roughness in GLOSSY_ROUGHNESS)
