@@ -18,9 +18,10 @@ import numpy as np
 
 from . import rng
 from .adaptive import close_holes, refine_mask
-from .blocker_map import BlockerMap
+from .blocker_map import BlockerMap, test_pairs
 from .camera import camera_rays, window_pixels
 from .film import filter_offsets
+from .parallel import thread_count
 from .scene import Scene
 from .settings import Settings
 from .surface import shade_hits
@@ -177,6 +178,23 @@ def inherit_blockers(blockers: BlockerMap, grid: tuple[int, int, int, int], land
     # The umbra flag was decided at the pixel's centre only: sub-pixel points are clipped in full.
     return BlockerMap(owner, blockers.light[entry], blockers.blocker[entry],
                       np.zeros((len(cell), n_lights), bool))
+
+
+def cull_to_samples(blockers: BlockerMap, sub, frames, polygons, settings: Settings) -> BlockerMap:
+    """The inherited lists cut down to the pairs that overlap at each sample, with umbra per sample.
+
+    A pixel's list holds every pair needed anywhere in the pixel; at one sample most of them miss the light
+    (Suzanne at 96 px: 17 pairs per sample inherited). The flood fill's cone test, conservative, drops
+    those before pass 2 clips by them, and a blocker that alone hides a light from the sample (umbra, when
+    umbra detection is on) skips that light there.
+    """
+    overlap, umbra = test_pairs(sub, frames, polygons, blockers.pixel, blockers.blocker, blockers.light,
+                                thread_count(settings.threads))
+    hidden = np.zeros_like(blockers.umbra)
+    if settings.umbra_detection:
+        hidden[blockers.pixel[umbra], blockers.light[umbra]] = True
+    keep = overlap & ~hidden[blockers.pixel, blockers.light]
+    return BlockerMap(blockers.pixel[keep], blockers.light[keep], blockers.blocker[keep], blockers.umbra | hidden)
 
 
 def sample_rgba(sample_radiance: np.ndarray, surface, scene: Scene, settings: Settings, samples: int) -> np.ndarray:
