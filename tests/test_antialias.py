@@ -7,7 +7,7 @@ import pytest
 
 from lazyvis_addon.core import Progress, Settings, render
 from lazyvis_addon.core import demo_scenes
-from lazyvis_addon.core.antialias import inherit_blockers, subpixel_samples
+from lazyvis_addon.core.antialias import cull_to_samples, inherit_blockers, subpixel_samples
 from lazyvis_addon.core.blocker_map import build_blocker_map, reference_blocker_map
 from lazyvis_addon.core.blockers import BlockerPolygons
 from lazyvis_addon.core.demo_scenes import box_triangles, plane_under_light
@@ -30,9 +30,10 @@ def rods_scene(resolution=48, count=7):
     return scene
 
 
-def shade_subsamples(scene, settings, lists):
-    """Radiance of sub-pixel samples of every pixel: 'lazy' inherits pixel lists, 'reference' computes
-    each sample's own exact list."""
+def shade_subsamples(scene, settings, lists, culled=None):
+    """Radiance of sub-pixel samples of every pixel: 'lazy' inherits pixel lists (cut to the pairs
+    overlapping at each sample when ``culled`` is a list, which receives the cut map), 'reference'
+    computes each sample's own exact list."""
     scene = scene.validated()
     tracer = RayTracer(scene.triangles)
     extent = scene_extent(scene)
@@ -50,6 +51,11 @@ def shade_subsamples(scene, settings, lists):
         fill = settings if lists == "lazy" else settings.replace(aa_samples=1, extend_fill=False)
         pixel_map = build_blocker_map(surface, frames, polygons, tracer, shape, pixel_global, fill, Progress())
         sub_map = inherit_blockers(pixel_map, scene.camera.window, landing, len(frames))
+        if culled is not None:
+            full = sub_map
+            sub_map = cull_to_samples(sub_map, sub, frames, polygons, settings, Progress())
+            assert len(sub_map.pixel) < len(full.pixel) and not full.umbra.any()
+            culled.append(sub_map)
     pieces = visible_pieces(sub, frames, polygons, sub_map)
     radiance = outgoing_radiance(sub, frames, pieces.couples, pieces.couple_pixel, analytic(pieces, sub, frames))
     return radiance, sub.hit
@@ -71,6 +77,23 @@ def test_extended_fill_lists_hold_at_subpixel_points():
     assert error(extended) < 0.005
     assert error(extended) < 0.5 * error(centres_only)
     assert (extended >= truth - 1e-6).all()  # a missing blocker only brightens
+    # Cutting each sample's inherited list to the pairs that overlap there changes nothing.
+    culled, _ = shade_subsamples(scene, base, "lazy", culled=[])
+    np.testing.assert_allclose(culled[hit], extended, rtol=1e-9, atol=1e-12 * truth.max())
+
+
+def test_samples_in_umbra_skip_the_light():
+    """Samples in a box's umbra skip that light (its pairs dropped there); the image is the same as with
+    the inherited lists."""
+    scene = demo_scenes.floating_boxes(resolution=32, n_boxes=8)
+    settings = Settings(aa_samples=4)
+    maps = []
+    culled, hit = shade_subsamples(scene, settings, "lazy", culled=maps)
+    inherited, _ = shade_subsamples(scene, settings, "lazy")
+    np.testing.assert_allclose(culled, inherited, rtol=1e-9, atol=1e-12 * inherited.max())
+    sample, light = np.nonzero(maps[0].umbra)
+    assert len(sample) > 0
+    assert not np.isin(sample * len(scene.lights) + light, maps[0].pixel * len(scene.lights) + maps[0].light).any()
 
 
 def relative_rmse(image, reference):

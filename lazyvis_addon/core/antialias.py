@@ -18,7 +18,7 @@ import numpy as np
 
 from . import rng
 from .adaptive import close_holes, refine_mask
-from .blocker_map import BlockerMap, test_pairs
+from .blocker_map import TEST_BATCH, BlockerMap, test_pairs
 from .camera import camera_rays, window_pixels
 from .film import filter_offsets
 from .parallel import thread_count
@@ -180,7 +180,7 @@ def inherit_blockers(blockers: BlockerMap, grid: tuple[int, int, int, int], land
                       np.zeros((len(cell), n_lights), bool))
 
 
-def cull_to_samples(blockers: BlockerMap, sub, frames, polygons, settings: Settings) -> BlockerMap:
+def cull_to_samples(blockers: BlockerMap, sub, frames, polygons, settings: Settings, progress) -> BlockerMap:
     """The inherited lists cut down to the pairs that overlap at each sample, with umbra per sample.
 
     A pixel's list holds every pair needed anywhere in the pixel; at one sample most of them miss the light
@@ -188,8 +188,10 @@ def cull_to_samples(blockers: BlockerMap, sub, frames, polygons, settings: Setti
     those before pass 2 clips by them, and a blocker that alone hides a light from the sample (umbra, when
     umbra detection is on) skips that light there.
     """
+    progress.begin_stage("Sample blockers", -(-len(blockers.pixel) // TEST_BATCH))
     overlap, umbra = test_pairs(sub, frames, polygons, blockers.pixel, blockers.blocker, blockers.light,
-                                thread_count(settings.threads))
+                                thread_count(settings.threads), progress)
+    progress.end_stage()
     hidden = np.zeros_like(blockers.umbra)
     if settings.umbra_detection:
         hidden[blockers.pixel[umbra], blockers.light[umbra]] = True

@@ -71,12 +71,14 @@ class BlockerMap:
 
 
 def test_pairs(surface: SurfacePoints, frames: LightFrames, blockers: BlockerPolygons, pixel: np.ndarray,
-               blocker: np.ndarray, light: np.ndarray, threads: int = 1) -> tuple[np.ndarray, np.ndarray]:
+               blocker: np.ndarray, light: np.ndarray, threads: int = 1, progress: Progress | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
     """Does ``blocker`` overlap ``light`` seen from the visible point of ``pixel``?
 
     Parameters
     ----------
     surface : SurfacePoints of the whole window; pixel, blocker, light : (N,) int64.
+    progress : advanced by one per batch of pairs (and may cancel), when given.
 
     Returns
     -------
@@ -86,7 +88,7 @@ def test_pairs(surface: SurfacePoints, frames: LightFrames, blockers: BlockerPol
     starts = range(0, len(pixel), TEST_BATCH)
     parts = map_batches(lambda start: _test_batch(surface, frames, blockers, pixel[start:start + TEST_BATCH],
                                                   blocker[start:start + TEST_BATCH], light[start:start + TEST_BATCH]),
-                        starts, threads)
+                        starts, threads, progress)
     if not parts:
         return np.zeros(0, bool), np.zeros(0, bool)
     return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])

@@ -152,7 +152,7 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
             sub, landing, sub_global = subpixel_samples(scene, tracer, extent, pixels, settings, pixel_global)
             if lazy:
                 sub_map = cull_to_samples(inherit_blockers(outer_map, outer, landing, len(frames)), sub, frames,
-                                          polygons, settings)
+                                          polygons, settings, progress)
                 # A pixel's list holds for the surface seen at its centre, not on another surface seen
                 # between centres (a slat's face: the chapel at filter 1.5 was +8.6% too bright), so those
                 # samples are always verified. Elsewhere a sample can still meet a blocker that parallax
