@@ -39,9 +39,9 @@ class Settings:
         (beyond the paper). The error from missed blockers falls towards zero as they grow; 0 (the default)
         turns verification off. Only the window's pixels are verified, so a window equals the full frame
         exactly only without verification.
-        Anti-aliasing samples are always verified, with 4 rays each (``render.SAMPLE_VERIFY_RAYS``), a
-        pair found at one joining all the pixel's samples: a pixel's list need not hold at a sample that
-        sees another surface than the pixel's centre.
+        Anti-aliasing samples that see another surface than their pixel's centre (whose inherited list
+        is made for the wrong surface) are always verified, every sample when this is > 0: 4 rays each
+        (``render.SAMPLE_VERIFY_RAYS``), a pair found at one joining all the pixel's samples.
     refine_rounds : int
         How many times verification may add blockers and re-shade.
     mc_samples : int
