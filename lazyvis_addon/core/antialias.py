@@ -10,6 +10,10 @@ sample: where nothing changes across a pixel the filtered value is the centre va
 The window's outermost pixels have neighbours outside it, which the filter (radius 1.5 px by default)
 reaches as well: a ring of camera rays one pixel outside the window tells whether those see another
 polygon or material (their radiance is not computed, so radiance steps just outside are not seen).
+
+A sample's inherited list is cut to the pairs that overlap at the sample (``cull_to_samples``). It need not
+hold where the sample sees another surface than the pixel's centre (``foreign_samples``): the render
+verifies those samples with shadow rays (render._shade_verified).
 """
 
 from __future__ import annotations
