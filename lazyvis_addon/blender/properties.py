@@ -121,10 +121,10 @@ def settings_from_scene(scene) -> Settings:
 def pixel_filter(scene) -> dict:
     """``filter_width`` and ``filter_type`` as Cycles reads them (Film > Pixel Filter), so that both engines
     filter a .blend alike. ``render.filter_size`` is EEVEE's and independent: a .blend may carry 1.5 in
-    one and 0.01 in the other. Without the Cycles add-on its defaults apply."""
+    one and 0.01 in the other. Without the Cycles add-on, the core's defaults (Cycles' own) apply."""
     cycles = getattr(scene, "cycles", None)
     if cycles is None:
-        return {"filter_width": 1.5, "filter_type": "BLACKMAN_HARRIS"}
+        return {}
     return {"filter_width": float(f"{cycles.filter_width:.6g}"), "filter_type": str(cycles.pixel_filter_type)}
 
 

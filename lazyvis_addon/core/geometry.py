@@ -136,7 +136,8 @@ def split_convex(points: np.ndarray, count: np.ndarray, side: np.ndarray, want_o
         side_next = np.roll(side, -1, axis=1)
         side_next[rows, last] = side[:, 0]
         cross_in = ((side >= 0.0) != (side_next >= 0.0)) & valid
-        cross_out = ((side <= 0.0) != (side_next <= 0.0)) & valid
+        # Only the outside part needs its own crossings (clip_convex, in the hot paths, skips them).
+        cross_out = ((side <= 0.0) != (side_next <= 0.0)) & valid if want_outside else None
         return side_next, cross_in, cross_out
 
     side_next, cross_in, cross_out = crossings(side)
@@ -144,7 +145,9 @@ def split_convex(points: np.ndarray, count: np.ndarray, side: np.ndarray, want_o
     # the line can alternate sides and cross it more often (seen on the chapel's slats at 64 samples per
     # pixel), which would overflow the K + 1 output slots: such a polygon touches the line only within
     # rounding, so it is kept whole on the side where its vertices lean.
-    tangled = (cross_in.sum(axis=1) > 2) | (cross_out.sum(axis=1) > 2)
+    tangled = cross_in.sum(axis=1) > 2
+    if want_outside:
+        tangled |= cross_out.sum(axis=1) > 2
     if tangled.any():
         side = side.copy()
         lean = np.where(np.where(valid[tangled], side[tangled], 0.0).sum(axis=1) >= 0.0, 1.0, -1.0)
@@ -153,7 +156,6 @@ def split_convex(points: np.ndarray, count: np.ndarray, side: np.ndarray, want_o
     points_next = np.roll(points, -1, axis=1)
     points_next[rows, last] = points[:, 0]
     keep_in = side >= 0.0
-    keep_out = side <= 0.0
     crossing_mask = cross_in | cross_out if want_outside else cross_in
     crossing = np.zeros_like(points)
     row, col = np.nonzero(crossing_mask)
@@ -162,7 +164,7 @@ def split_convex(points: np.ndarray, count: np.ndarray, side: np.ndarray, want_o
     inside, inside_count = _assemble(points, crossing, keep_in & valid, cross_in)
     if not want_outside:
         return inside, inside_count, None, None
-    outside, outside_count = _assemble(points, crossing, keep_out & valid, cross_out)
+    outside, outside_count = _assemble(points, crossing, (side <= 0.0) & valid, cross_out)
     return inside, inside_count, outside, outside_count
 
 

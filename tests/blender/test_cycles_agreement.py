@@ -103,7 +103,7 @@ TEXEL_STEP = 0.25     # relative radiance change over the reach on a textured su
 INDEX = agreement_scenes.REFERENCES / "references.json"
 
 
-def point_sampled(scene, monkeypatch) -> None:
+def point_sampled(scene) -> None:
     """LazyVis shades pixel centres only, like the references (Cycles' filter width 0.01)."""
     scene.lazyvis.aa_samples = 1
 
@@ -146,7 +146,7 @@ def references(case) -> tuple[np.ndarray, np.ndarray]:
     return images[0], images[1]
 
 
-def render_lazyvis(case, integrator, monkeypatch, tmp_path, **settings) -> np.ndarray:
+def render_lazyvis(case, integrator, tmp_path, **settings) -> np.ndarray:
     """LazyVis' image (H, W, 3) of ``case`` through Blender, point-sampled unless the case has a wider
     pixel filter (``settings``: more ``scene.lazyvis`` values)."""
     scene = agreement_scenes.load(case)
@@ -155,11 +155,11 @@ def render_lazyvis(case, integrator, monkeypatch, tmp_path, **settings) -> np.nd
         setattr(scene.lazyvis, key, value)
     scene.lazyvis.integrator = integrator
     if case.point_sampled:
-        point_sampled(scene, monkeypatch)
+        point_sampled(scene)
     return render_to_exr(scene, tmp_path / f"{case.name}.exr")["RGBA"][..., :3]
 
 
-def render_lazyvis_filtered(case, monkeypatch, tmp_path, seed: int) -> tuple[np.ndarray, np.ndarray]:
+def render_lazyvis_filtered(case, tmp_path, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """LazyVis' image (H, W, 3) float64 of a filtered ``case`` with anti-aliasing seed ``seed``, and which
     pixels (H, W) bool it anti-aliased (its Sample Count pass)."""
     scene = agreement_scenes.load(case)
@@ -216,13 +216,13 @@ def _cross(reach):
     return [(0.0, 0.0), (reach, 0.0), (-reach, 0.0), (0.0, reach), (0.0, -reach)]
 
 
-def _point_sampled_scene(case, monkeypatch):
+def _point_sampled_scene(case):
     """``case`` loaded for LazyVis with its settings, shading pixel centres."""
     scene = agreement_scenes.load(case)
     scene.render.engine = engine_module.ENGINE_ID
     for key, value in case.lazyvis.items():
         setattr(scene.lazyvis, key, value)
-    point_sampled(scene, monkeypatch)
+    point_sampled(scene)
     return scene
 
 
@@ -235,7 +235,7 @@ def _renders(scene, case, offsets, tmp_path) -> list[np.ndarray]:
 STRAY_POSITIONS = 4  # stray positions averaged per axis (26 change the textured case's ratio by 0.02)
 
 
-def with_stray_samples(case, ours, monkeypatch, tmp_path) -> np.ndarray:
+def with_stray_samples(case, ours, tmp_path) -> np.ndarray:
     """LazyVis' point-sampled image ``ours`` (H, W, 3) as Cycles' filter of width 0.01 sees it, on scenes
     with textures.
 
@@ -249,7 +249,7 @@ def with_stray_samples(case, ours, monkeypatch, tmp_path) -> np.ndarray:
     pixel along each axis. LazyVis' own value keeps 99.8% of the weight: no error of its own can hide in
     the correction. Scenes without textures: ``ours`` unchanged.
     """
-    scene = _point_sampled_scene(case, monkeypatch)
+    scene = _point_sampled_scene(case)
     if not _textured(scene):
         return ours
     positions = -0.5 + 0.51 * (np.arange(STRAY_POSITIONS) + 0.5) / STRAY_POSITIONS
@@ -259,7 +259,7 @@ def with_stray_samples(case, ours, monkeypatch, tmp_path) -> np.ndarray:
     return ours + (left - ours) / 1023.0 + (below - ours) / 1023.0
 
 
-def excluded_pixels(case, monkeypatch, tmp_path, reach: float = SILHOUETTE_REACH):
+def excluded_pixels(case, tmp_path, reach: float = SILHOUETTE_REACH):
     """Pixels Cycles' footprint legitimately mixes: (H, W) bool near edges, (H, W) bool at emitters, and
     the (H, W, 3) normal seen at each pixel centre (zero on the background).
 
@@ -281,7 +281,7 @@ def excluded_pixels(case, monkeypatch, tmp_path, reach: float = SILHOUETTE_REACH
       surroundings that one sample is far above the noise, so the emitter's pixels and their 8 neighbours
       are left out (found with a render in which only the emitting meshes are visible).
     """
-    scene = _point_sampled_scene(case, monkeypatch)
+    scene = _point_sampled_scene(case)
     textured = _textured(scene)
     steps = None
     if textured:
@@ -334,13 +334,13 @@ CASES += [pytest.param(case, "reference", id=f"{case.name}-reference")
 
 
 @pytest.mark.parametrize("case, integrator", CASES)
-def test_lazyvis_matches_cycles_within_its_noise(addon, case, integrator, monkeypatch, tmp_path):
+def test_lazyvis_matches_cycles_within_its_noise(addon, case, integrator, tmp_path):
     first, second = references(case)
-    ours = render_lazyvis(case, integrator, monkeypatch, tmp_path)
+    ours = render_lazyvis(case, integrator, tmp_path)
     assert ours.shape == first.shape, f"LazyVis rendered {ours.shape}, the reference is {first.shape}"
     assert first.mean() > 0.0 and np.isfinite(ours).all()
-    ours = with_stray_samples(case, ours, monkeypatch, tmp_path)
-    edges, at_emitters, _ = excluded_pixels(case, monkeypatch, tmp_path)
+    ours = with_stray_samples(case, ours, tmp_path)
+    edges, at_emitters, _ = excluded_pixels(case, tmp_path)
     assert edges.mean() <= 0.05, f"{edges.sum()} of {edges.size} pixels are next to an edge: too many to leave out"
     stats = agreement(ours, first, second, ~(edges | at_emitters))
     print(describe(f"{case.name} ({integrator}, {stats['excluded']} pixels left out)", stats))
@@ -348,7 +348,7 @@ def test_lazyvis_matches_cycles_within_its_noise(addon, case, integrator, monkey
 
 
 @pytest.mark.parametrize("case", FILTERED_CASES, ids=[case.name for case in FILTERED_CASES])
-def test_default_filter_matches_cycles(addon, case, monkeypatch, tmp_path):
+def test_default_filter_matches_cycles(addon, case, tmp_path):
     """Blender's default pixel filter (Blackman-Harris, 1.5 px) in both renderers, LazyVis with its own
     anti-aliasing defaults (16 edge samples, adaptive): no pixel left out.
 
@@ -361,7 +361,7 @@ def test_default_filter_matches_cycles(addon, case, monkeypatch, tmp_path):
     A missed edge fails this: before the frame's outermost pixels were anti-aliased, a floor ending just
     below the frame left the boxes' bottom row 19% too bright, 3.6 times the noise."""
     first, second = references(case)
-    (ours, refined), (second_seed, _) = (render_lazyvis_filtered(case, monkeypatch, tmp_path, seed) for seed in (1, 2))
+    (ours, refined), (second_seed, _) = (render_lazyvis_filtered(case, tmp_path, seed) for seed in (1, 2))
     ours = [ours, second_seed]
     assert ours[0].shape == first.shape and np.isfinite(ours[0]).all()
     assert 0.0 < refined.mean() < 1.0
@@ -383,7 +383,7 @@ def test_default_filter_matches_cycles(addon, case, monkeypatch, tmp_path):
     assert centre_error <= math.sqrt(RATIO_LIMIT ** 2 - 1.0), f"{case.name}: centre-shaded pixels {centre_error:.2f}"
 
 
-def test_shadow_terminator_offset_is_the_one_known_difference(addon, monkeypatch, tmp_path):
+def test_shadow_terminator_offset_is_the_one_known_difference(addon, tmp_path):
     """Suzanne with Blender's default Shadow Terminator Geometry Offset (0.1), which LazyVis does not
     implement: Cycles lifts shadow rays of her smooth faces off the flat triangles, so her self-shadowed
     creases are lighter in Cycles. The floor (flat, offset irrelevant) still agrees within the noise and
@@ -391,8 +391,8 @@ def test_shadow_terminator_offset_is_the_one_known_difference(addon, monkeypatch
     implements the offset this test fails: move the case to the agreeing ones then."""
     case = agreement_scenes.CASES_BY_NAME["suzanne_terminator_offset"]
     first, second = references(case)
-    ours = render_lazyvis(case, "analytic", monkeypatch, tmp_path)
-    edges, at_emitters, normal = excluded_pixels(case, monkeypatch, tmp_path)
+    ours = render_lazyvis(case, "analytic", tmp_path)
+    edges, at_emitters, normal = excluded_pixels(case, tmp_path)
     excluded = edges | at_emitters
     floor = ~excluded & (normal[..., 2] > 0.9999)
     suzanne = ~excluded & (np.abs(normal).sum(axis=2) > 0) & (normal[..., 2] <= 0.9999)
@@ -439,11 +439,11 @@ LTC_LIMITS = {0.1: (0.015, 0.005), 0.3: (0.075, 0.02), 0.5: (0.07, 0.01), 0.8: (
 
 
 @pytest.mark.parametrize("case", GLOSSY_CASES, ids=[case.name for case in GLOSSY_CASES])
-def test_glossy_monte_carlo_matches_cycles_within_the_noise(addon, case, monkeypatch, tmp_path):
+def test_glossy_monte_carlo_matches_cycles_within_the_noise(addon, case, tmp_path):
     first, second = references(case)
-    ours = [render_lazyvis(case, "analytic", monkeypatch, tmp_path, glossy_integrator="mc",
+    ours = [render_lazyvis(case, "analytic", tmp_path, glossy_integrator="mc",
                            mc_samples=GLOSSY_MC_SAMPLES, seed=seed) for seed in (1, 2)]
-    edges, at_emitters, _ = excluded_pixels(case, monkeypatch, tmp_path)
+    edges, at_emitters, _ = excluded_pixels(case, tmp_path)
     mask = ~(edges | at_emitters)
     stats = agreement(ours[0], first, second, mask)
     own = agreement(ours[1], ours[0], ours[0], mask)  # RMSE between LazyVis' two seeds
@@ -456,10 +456,10 @@ def test_glossy_monte_carlo_matches_cycles_within_the_noise(addon, case, monkeyp
 
 
 @pytest.mark.parametrize("case", GLOSSY_CASES, ids=[case.name for case in GLOSSY_CASES])
-def test_glossy_ltc_error_against_cycles_is_as_documented(addon, case, monkeypatch, tmp_path):
+def test_glossy_ltc_error_against_cycles_is_as_documented(addon, case, tmp_path):
     first, second = references(case)
-    ours = render_lazyvis(case, "analytic", monkeypatch, tmp_path, glossy_integrator="ltc")
-    edges, at_emitters, _ = excluded_pixels(case, monkeypatch, tmp_path)
+    ours = render_lazyvis(case, "analytic", tmp_path, glossy_integrator="ltc")
+    edges, at_emitters, _ = excluded_pixels(case, tmp_path)
     stats = agreement(ours, first, second, ~(edges | at_emitters))
     roughness = dict(case.options)["roughness"]
     rmse_limit, bias_limit = LTC_LIMITS[roughness]
