@@ -7,7 +7,10 @@ import pytest
 
 from lazyvis_addon.core import Progress, Settings, render
 from lazyvis_addon.core import demo_scenes
-from lazyvis_addon.core.antialias import cull_to_samples, inherit_blockers, subpixel_samples
+from lazyvis_addon.core import rng
+from lazyvis_addon.core.antialias import (cull_to_samples, inherit_blockers, landing_pixels, pool_samples,
+                                          subpixel_samples)
+from lazyvis_addon.core.film import filter_offsets, offset_density
 from lazyvis_addon.core.blocker_map import build_blocker_map, reference_blocker_map
 from lazyvis_addon.core.blockers import BlockerPolygons
 from lazyvis_addon.core.demo_scenes import box_triangles, plane_under_light
@@ -43,7 +46,8 @@ def shade_subsamples(scene, settings, lists, culled=None):
     shape = scene.camera.window_shape
     pixel_global = _global_pixels(scene.camera)
     pixels = np.flatnonzero(surface.hit)
-    sub, landing, _ = subpixel_samples(scene, tracer, extent, pixels, settings, pixel_global)
+    sub, position, _ = subpixel_samples(scene, tracer, extent, pixels, settings, pixel_global)
+    landing = landing_pixels(position)
     if lists == "reference":
         sub_map = reference_blocker_map(sub, frames, polygons, (len(sub), 1), settings, Progress())
     else:
@@ -121,6 +125,79 @@ def test_adaptive_antialiasing_removes_most_edge_error():
     np.testing.assert_array_equal(adaptive.combined[..., :3][~refined], one[~refined])
 
 
+def slanted_edge(point):
+    """1 right of the line x + 0.3 y = 6.1 (raster pixels), 0 left of it."""
+    return (point[:, 0] + 0.3 * point[:, 1] > 6.1).astype(np.float64)
+
+
+def filter_draws(pixels, width, samples, seed, settings):
+    """Raster positions (P * S, 2) of the samples subpixel_samples would place for ``pixels``."""
+    parent = np.repeat(pixels, samples)
+    u = rng.sobol_2d(seed, 0, rng.STREAM_FILM, parent, np.tile(np.arange(samples), len(pixels)))
+    offset = filter_offsets(u, settings.effective_filter_width, settings.filter_type)
+    return np.stack([parent % width, parent // width], axis=1) + offset
+
+
+def filtered_edge(pixels, width, settings, n=600):
+    """Exact filtered value of slanted_edge at each pixel: midpoint quadrature of the sampling density."""
+    s = (np.arange(n) + 0.5) / n * 4.0 - 1.5  # offsets from the pixel's corner over [-1.5, 2.5]
+    dx = offset_density(s, settings.effective_filter_width, settings.filter_type) * 4.0 / n
+    dy = offset_density(1.0 - s, settings.effective_filter_width, settings.filter_type) * 4.0 / n
+    values = []
+    for p in pixels:  # 144 test pixels
+        x, y = np.meshgrid(p % width + s, p // width + s)
+        inside = slanted_edge(np.stack([x.ravel(), y.ravel()], axis=1)).reshape(n, n)
+        values.append(np.sum(dy[:, None] * dx[None, :] * inside))
+    return np.array(values)
+
+
+def test_pooled_samples_estimate_the_filtered_value_with_less_noise():
+    """pool_samples weighs every sample under a pixel's filter by the balance heuristic. On a slanted edge
+    over a 12 x 12 window, 8 samples per pixel, 64 seeds: its mean is the exactly filtered value (within
+    4 standard errors + 1e-3 of quadrature, every pixel, window borders included) and its RMS error is
+    under 0.8x that of each pixel's plain mean of its own samples (measured 0.71x). Constant samples pool
+    to exactly that constant; with a box filter no footprints overlap and pooling is the plain mean."""
+    width, samples = 12, 8
+    settings = Settings(aa_samples=samples)
+    window = (0, 0, width, width)
+    pixels = np.arange(width * width)
+    truth = filtered_edge(pixels, width, settings)
+    pooled, plain = [], []
+    for seed in range(64):
+        position = filter_draws(pixels, width, samples, seed, settings)
+        value = slanted_edge(position)
+        rgba = np.stack([value, value, value, np.ones_like(value)], axis=1)
+        pooled.append(pool_samples(rgba, position, pixels, window, samples, settings)[:, 0])
+        plain.append(value.reshape(-1, samples).mean(axis=1))
+    pooled, plain = np.array(pooled), np.array(plain)
+    standard_error = pooled.std(axis=0) / np.sqrt(len(pooled))
+    assert np.all(np.abs(pooled.mean(axis=0) - truth) <= 4 * standard_error + 1e-3)
+    rms_pooled, rms_plain = (np.sqrt(np.mean((e - truth) ** 2)) for e in (pooled, plain))
+    assert rms_pooled < 0.8 * rms_plain, (rms_pooled, rms_plain)
+
+    # Only every other pixel supersampled: the rest contribute nothing and the pooled ones stay unbiased.
+    some = pixels[(pixels % width + pixels // width) % 2 == 0]
+    sparse = []
+    for seed in range(64):
+        position = filter_draws(some, width, samples, seed, settings)
+        value = slanted_edge(position)
+        sparse.append(pool_samples(np.stack([value] * 3 + [np.ones_like(value)], axis=1), position, some,
+                                   window, samples, settings)[:, 0])
+    sparse = np.array(sparse)
+    assert np.all(np.abs(sparse.mean(axis=0) - truth[some])
+                  <= 4 * sparse.std(axis=0) / np.sqrt(len(sparse)) + 1e-3)
+
+    constant = np.tile([0.25, 0.5, 2.0, 1.0], (len(pixels) * samples, 1))
+    np.testing.assert_allclose(pool_samples(constant, filter_draws(pixels, width, samples, 0, settings), pixels,
+                                            window, samples, settings), constant[:len(pixels)], rtol=1e-12)
+    box = Settings(aa_samples=samples, filter_type="BOX")
+    position = filter_draws(pixels, width, samples, 0, box)
+    value = slanted_edge(position)
+    rgba = np.stack([value, value, value, np.ones_like(value)], axis=1)
+    np.testing.assert_allclose(pool_samples(rgba, position, pixels, window, samples, box),
+                               rgba.reshape(-1, samples, 4).mean(axis=1), atol=1e-12)
+
+
 def test_samples_spread_as_far_as_cycles_pixel_filter_type():
     """Box: every sample in its own pixel (Cycles forces width 1); Blackman-Harris reaches the width;
     Gaussian 1.5 times the width (Cycles tabulates it over 3 widths)."""
@@ -130,8 +207,9 @@ def test_samples_spread_as_far_as_cycles_pixel_filter_type():
     reach = {}
     for filter_type in ("BOX", "BLACKMAN_HARRIS", "GAUSSIAN"):
         settings = Settings(aa_samples=64, filter_width=2.0, filter_type=filter_type)
-        sub, landing, _ = subpixel_samples(scene, tracer, scene_extent(scene), pixels, settings,
-                                           _global_pixels(scene.camera))
+        sub, position, _ = subpixel_samples(scene, tracer, scene_extent(scene), pixels, settings,
+                                            _global_pixels(scene.camera))
+        landing = landing_pixels(position)
         parent = np.stack([pixels % 16, pixels // 16], axis=1).repeat(64, axis=0)
         reach[filter_type] = np.abs(landing - parent).max()
         assert reach[filter_type] <= np.ceil(settings.filter_reach - 0.5)
@@ -143,9 +221,10 @@ def test_samples_spread_as_far_as_cycles_pixel_filter_type():
 
 def test_samples_are_verified_where_their_pixel_list_does_not_hold(monkeypatch):
     """A sample seeing a box's side between two pixel centres inherits a list made for the floor. Against
-    exact lists at the samples, the refined pixels are 1.6% off (RMS) without verification at the samples,
-    0.24% when the samples on another surface are verified (the default), 0.06% when every sample is
-    (what ``verify_rays`` > 0 asks for: parallax uncovers blockers hidden at the centre)."""
+    exact lists at the samples, the refined pixels are 1.0% off (RMS) without verification at the samples,
+    0.27% when the samples on another surface are verified (the default), 0.04% when every sample is
+    (what ``verify_rays`` > 0 asks for: parallax uncovers blockers hidden at the centre). (Before samples
+    were pooled across neighbouring pixels: 1.6%, 0.24%, 0.06%.)"""
     scene = demo_scenes.floating_boxes(resolution=48, n_boxes=16)
     settings = Settings(aa_samples=16, shadow_rays=16)
     exact = render(scene, settings.replace(integrator="reference"))
@@ -163,7 +242,7 @@ def test_samples_are_verified_where_their_pixel_list_does_not_hold(monkeypatch):
     unverified = error(render(scene, settings))
     print(f"refined pixels against exact lists: unverified {unverified:.3%}, foreign samples verified "
           f"{error(foreign):.3%}, every sample {error(every):.3%}")
-    assert error(every) < 0.001 and error(foreign) < 0.004 and unverified > 5 * error(foreign)
+    assert error(every) < 0.001 and error(foreign) < 0.004 and unverified > 3 * error(foreign)
 
 
 def test_command_line_passes_the_anti_aliasing_settings(tmp_path):

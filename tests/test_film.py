@@ -37,6 +37,7 @@ from lazyvis_addon.core.film import (
     filter_function,
     filter_offsets,
     filter_table,
+    offset_density,
     read_table,
 )
 from test_sampling import chi2_critical
@@ -156,6 +157,29 @@ def test_width_semantics(np_rng):
     tiny = filter_offsets(u, 0.01)
     near = np.all(np.abs(tiny - 0.5) <= 0.01 + 1e-12, axis=1)
     assert 1.0 - near.mean() == pytest.approx(2 * STRAY * (1 - 0.02 / 0.51), rel=0.1)
+
+
+def test_offset_density_is_the_density_the_table_samples():
+    """The density that pooling weighs samples by: it integrates to 1 for every filter type, puts on
+    equally likely bins of the closed-form Blackman-Harris CDF (stray entry included) their probability to
+    0.2% (the 1023-entry table's resolution), and 0 outside the support; y offsets (``1 - T(u)``) have
+    ``offset_density(1 - t)``, checked by chi-square on sampled offsets."""
+    t = np.linspace(-2.5, 3.5, 3_000_001)
+    for width, filter_type in ((1.5, "BLACKMAN_HARRIS"), (1.0, "GAUSSIAN"), (1.0, "BOX"), (0.01, "BLACKMAN_HARRIS")):
+        density = offset_density(t, width, filter_type)
+        assert np.trapz(density, t) == pytest.approx(1.0, abs=1e-5), filter_type
+    edges = equal_probability_edges(1.5, 50)
+    edges[0], edges[-1] = -1.2, 2.3
+    density = offset_density(t, 1.5)
+    cumulative = np.concatenate([[0.0], np.cumsum(0.5 * (density[1:] + density[:-1]) * np.diff(t))])
+    got = np.diff(np.interp(edges, t, cumulative))
+    np.testing.assert_allclose(got, np.diff(offset_cdf(edges, 1.5)), rtol=2e-3)
+    assert offset_density(np.array([-1.01, 2.01]), 1.5).tolist() == [0.0, 0.0]
+    # Chi-square of sampled y offsets against the density's own bin probabilities.
+    offsets = filter_offsets(np.random.default_rng(3).uniform(size=(200_000, 2)), 1.5)
+    counts = np.histogram(1.0 - offsets[:, 1], edges)[0]
+    expected = len(offsets) * got
+    assert np.sum((counts - expected) ** 2 / expected) < chi2_critical(len(counts) - 1)
 
 
 def test_other_filter_types(np_rng):

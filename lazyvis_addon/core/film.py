@@ -166,3 +166,33 @@ def filter_offsets(u: np.ndarray, width: float, filter_type: str = "BLACKMAN_HAR
     x = read_table(table, u[:, 0])
     y = 1.0 - read_table(table, u[:, 1])  # Cycles' raster y grows upwards; LazyVis' pixel y grows down.
     return np.stack([x, y], axis=1)
+
+
+def offset_density(t, width: float, filter_type: str = "BLACKMAN_HARRIS") -> np.ndarray:
+    """Probability density of one coordinate of ``filter_offsets`` as Cycles' table read produces it.
+
+    Each of the table's first ``size - 2`` intervals holds 1 / (size - 1) of the uniforms and spreads them
+    evenly between its two entries; the last one runs from the last real entry down to the stray 0 entry.
+    This is the exact density of the x offset; the y offset ``1 - T(u)`` has density ``offset_density(1 - t)``.
+
+    Parameters
+    ----------
+    t : (...) float64    position inside the pixel measured from its left edge (pixels; 0.5 = centre).
+    width, filter_type : as for ``filter_offsets``.
+
+    Returns
+    -------
+    (...) float64 density per pixel (integrates to 1 over t); 0 outside the filter's support.
+    """
+    table = filter_table(width, filter_type)
+    size = len(table)
+    knots = table[:size - 1]
+    t = np.asarray(t, dtype=np.float64)
+    interval = np.searchsorted(knots, t, side="right") - 1
+    regular = (interval >= 0) & (interval < size - 2)
+    safe = np.clip(interval, 0, size - 3)
+    span = knots[safe + 1] - knots[safe]
+    mass = 1.0 / (size - 1)
+    density = np.where(regular & (span > 0.0), mass / np.where(span > 0.0, span, 1.0), 0.0)
+    stray_end = knots[-1]  # the last interval reads from this entry towards the stray 0
+    return density + np.where((t >= 0.0) & (t <= stray_end), mass / stray_end, 0.0)

@@ -12,7 +12,8 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from .antialias import cull_to_samples, foreign_samples, inherit_blockers, refine_pixels, resolve, subpixel_samples
+from .antialias import (cull_to_samples, foreign_samples, inherit_blockers, landing_pixels, pool_samples, refine_pixels,
+                        sample_rgba, subpixel_samples)
 from .blockers import BlockerPolygons
 from .blocker_map import BlockerMap, build_blocker_map, flood_fill, reference_blocker_map
 from .camera import camera_rays, planar_depth, window_pixels
@@ -149,7 +150,8 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
         pixels = refine_pixels(scene, surface, radiance, (height, width), settings, tracer)
         stats["aa_pixels"] = len(pixels)
         if len(pixels):
-            sub, landing, sub_global = subpixel_samples(scene, tracer, extent, pixels, settings, pixel_global)
+            sub, position, sub_global = subpixel_samples(scene, tracer, extent, pixels, settings, pixel_global)
+            landing = landing_pixels(position)
             if lazy:
                 sub_map = cull_to_samples(inherit_blockers(outer_map, outer, landing, len(frames)), sub, frames,
                                           polygons, settings, progress)
@@ -167,7 +169,8 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
                     reference_blocker_map(sub, frames, polygons, (len(sub), 1), settings, progress)
                 sub_radiance, _, _ = _illuminate(sub, frames, polygons, tracer, sub_map, settings, sub_global,
                                                  progress, scene.materials)
-            resolved = (pixels, resolve(sub_radiance, sub, scene, settings, settings.aa_samples))
+            rgba = sample_rgba(sub_radiance, sub, scene, settings, settings.aa_samples).reshape(-1, 4)
+            resolved = (pixels, pool_samples(rgba, position, pixels, camera.window, settings.aa_samples, settings))
 
     progress.begin_stage("Composing passes")
     output = _compose(scene, surface, radiance, blockers, settings, (height, width), resolved)

@@ -70,3 +70,55 @@ def stratified_2d(u: np.ndarray, sample: np.ndarray, count: int) -> np.ndarray:
         out[:, 0] = (sample + u[:, 0]) / count
         out[:, 1] = u[:, 1]
     return out
+
+
+def _reverse_bits32(x: np.ndarray) -> np.ndarray:
+    """Bit reversal of uint32 arrays."""
+    x = ((x >> np.uint32(1)) & np.uint32(0x55555555)) | ((x & np.uint32(0x55555555)) << np.uint32(1))
+    x = ((x >> np.uint32(2)) & np.uint32(0x33333333)) | ((x & np.uint32(0x33333333)) << np.uint32(2))
+    x = ((x >> np.uint32(4)) & np.uint32(0x0F0F0F0F)) | ((x & np.uint32(0x0F0F0F0F)) << np.uint32(4))
+    x = ((x >> np.uint32(8)) & np.uint32(0x00FF00FF)) | ((x & np.uint32(0x00FF00FF)) << np.uint32(8))
+    return (x >> np.uint32(16)) | (x << np.uint32(16))
+
+
+def _owen_scramble(x: np.ndarray, seed: np.ndarray) -> np.ndarray:
+    """Hash-based nested uniform (Owen) scrambling of 32-bit fixed-point values (Burley 2020, after
+    Laine and Karras): each bit is flipped by a hash of the bits above it, so strata map to strata."""
+    x = _reverse_bits32(x)
+    with np.errstate(over="ignore"):
+        x = x + seed
+        x = x ^ (x * np.uint32(0x6C50B47C))
+        x = x ^ (x * np.uint32(0xB82F1E52))
+        x = x ^ (x * np.uint32(0xC7AFE638))
+        x = x ^ (x * np.uint32(0x8D22F6E6))
+    return _reverse_bits32(x)
+
+
+def sobol_2d(seed: int, frame: int, stream: int, pixel: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """Points ``index`` of the first two dimensions of Sobol's (0, 2)-sequence, Owen-scrambled per pixel.
+
+    The first 2^m points of a pixel fall one in each cell of every 2^a x 2^b grid with a + b = m (its
+    strata of all shapes, not only squares), any count of points is well spread, and a later batch
+    continues the same sequence. Scrambling makes each point uniform on [0, 1)^2 and pixels independent.
+
+    Parameters
+    ----------
+    pixel : (N,) int64   global pixel index (as for ``uniforms``); index : (N,) int64 point of that pixel.
+
+    Returns
+    -------
+    (N, 2) float64 in [0, 1).
+    """
+    index = np.asarray(index, dtype=np.int64)
+    if len(index) and (index.min() < 0 or index.max() >= 2 ** 32):
+        raise ValueError("Sobol index out of range")
+    i = index.astype(np.uint32)
+    first = _reverse_bits32(i)  # van der Corput: the generator matrix is the identity
+    second = np.zeros_like(i)
+    direction = np.uint32(0x80000000)
+    for bit in range(int(index.max()).bit_length() if len(index) else 0):  # bits of the index: a handful
+        second ^= np.where((i >> np.uint32(bit)) & np.uint32(1), direction, np.uint32(0))
+        direction = np.uint32(direction ^ (direction >> np.uint32(1)))  # Pascal's triangle mod 2
+    keys = (uniforms(seed, frame, stream, pixel, np.zeros_like(index), 2) * 2.0 ** 32).astype(np.uint32)
+    points = np.stack([_owen_scramble(first, keys[:, 0]), _owen_scramble(second, keys[:, 1])], axis=1)
+    return points.astype(np.float64) * (1.0 / 2.0 ** 32)
