@@ -162,12 +162,13 @@ def test_pooled_samples_estimate_the_filtered_value_with_less_noise():
     window = (0, 0, width, width)
     pixels = np.arange(width * width)
     truth = filtered_edge(pixels, width, settings)
+    owner = np.repeat(np.arange(len(pixels)), samples)
     pooled, plain = [], []
     for seed in range(64):
         position = filter_draws(pixels, width, samples, seed, settings)
         value = slanted_edge(position)
         rgba = np.stack([value, value, value, np.ones_like(value)], axis=1)
-        pooled.append(pool_samples(rgba, position, pixels, window, samples, settings)[:, 0])
+        pooled.append(pool_samples(rgba, position, owner, pixels, samples, window, settings)[:, 0])
         plain.append(value.reshape(-1, samples).mean(axis=1))
     pooled, plain = np.array(pooled), np.array(plain)
     standard_error = pooled.std(axis=0) / np.sqrt(len(pooled))
@@ -181,20 +182,20 @@ def test_pooled_samples_estimate_the_filtered_value_with_less_noise():
     for seed in range(64):
         position = filter_draws(some, width, samples, seed, settings)
         value = slanted_edge(position)
-        sparse.append(pool_samples(np.stack([value] * 3 + [np.ones_like(value)], axis=1), position, some,
-                                   window, samples, settings)[:, 0])
+        sparse.append(pool_samples(np.stack([value] * 3 + [np.ones_like(value)], axis=1), position,
+                                   np.repeat(np.arange(len(some)), samples), some, samples, window, settings)[:, 0])
     sparse = np.array(sparse)
     assert np.all(np.abs(sparse.mean(axis=0) - truth[some])
                   <= 4 * sparse.std(axis=0) / np.sqrt(len(sparse)) + 1e-3)
 
     constant = np.tile([0.25, 0.5, 2.0, 1.0], (len(pixels) * samples, 1))
-    np.testing.assert_allclose(pool_samples(constant, filter_draws(pixels, width, samples, 0, settings), pixels,
-                                            window, samples, settings), constant[:len(pixels)], rtol=1e-12)
+    np.testing.assert_allclose(pool_samples(constant, filter_draws(pixels, width, samples, 0, settings), owner,
+                                            pixels, samples, window, settings), constant[:len(pixels)], rtol=1e-12)
     box = Settings(aa_samples=samples, filter_type="BOX")
     position = filter_draws(pixels, width, samples, 0, box)
     value = slanted_edge(position)
     rgba = np.stack([value, value, value, np.ones_like(value)], axis=1)
-    np.testing.assert_allclose(pool_samples(rgba, position, pixels, window, samples, box),
+    np.testing.assert_allclose(pool_samples(rgba, position, owner, pixels, samples, window, box),
                                rgba.reshape(-1, samples, 4).mean(axis=1), atol=1e-12)
 
 

@@ -25,7 +25,7 @@ import numpy as np
 
 from . import rng
 from .adaptive import close_holes, refine_mask
-from .blocker_map import TEST_BATCH, BlockerMap, test_pairs
+from .blocker_map import BlockerMap, test_pairs
 from .camera import camera_rays, window_pixels
 from .film import filter_offsets, offset_density
 from .parallel import thread_count
@@ -200,7 +200,7 @@ def cull_to_samples(blockers: BlockerMap, sub, frames, polygons, settings: Setti
     those before pass 2 clips by them, and a blocker that alone hides a light from the sample (umbra, when
     umbra detection is on) skips that light there.
     """
-    progress.begin_stage("Sample blockers", -(-len(blockers.pixel) // TEST_BATCH))
+    progress.begin_stage("Sample blockers", len(blockers.pixel))
     overlap, umbra = test_pairs(sub, frames, polygons, blockers.pixel, blockers.blocker, blockers.light,
                                 thread_count(settings.threads), progress)
     progress.end_stage()
@@ -228,15 +228,15 @@ def sample_rgba(sample_radiance: np.ndarray, surface, scene: Scene, settings: Se
 POOL_BATCH = 32768
 
 
-def pool_samples(rgba: np.ndarray, position: np.ndarray, pixels: np.ndarray, window: tuple[int, int, int, int],
-                 samples: int, settings: Settings) -> np.ndarray:
+def pool_samples(rgba: np.ndarray, position: np.ndarray, owner: np.ndarray, pixels: np.ndarray, counts,
+                 window: tuple[int, int, int, int], settings: Settings) -> np.ndarray:
     """Filtered RGBA of the supersampled pixels from all their samples, their neighbours' included.
 
     The filter footprints of neighbouring pixels overlap (radius 1.5 px by default), so a sample drawn for
     one pixel also lies under its neighbours' filters. Each pixel p takes every sample s under its filter,
     weighted by the balance heuristic over the pixels that drew samples there:
-    ``w_ps = g_p(x_s) / sum_q S g_q(x_s)``, with ``g_q`` the exact density with which pixel q places its
-    samples (``film.offset_density``) and q over the supersampled pixels; the value is
+    ``w_ps = g_p(x_s) / sum_q S_q g_q(x_s)``, with ``g_q`` the exact density with which pixel q places each
+    of its S_q samples (``film.offset_density``) and q over the supersampled pixels; the value is
     ``sum_s w_ps rgba_s / sum_s w_ps``. This estimates the same filtered value as the plain mean of p's own
     samples (Cycles' estimator; the ratio form is consistent, biased by O(1/S)) with several times the
     samples: on the fence bench 9 samples pooled err like 16 unpooled. With a box filter nothing
@@ -244,9 +244,11 @@ def pool_samples(rgba: np.ndarray, position: np.ndarray, pixels: np.ndarray, win
 
     Parameters
     ----------
-    rgba : (P * S, 4) float64       the samples' RGBA, pixel-major (``sample_rgba`` reshaped).
-    position : (P * S, 2) float64   their full-frame raster positions (``subpixel_samples``).
-    pixels : (P,) int64             the window-local pixels they were drawn for, in that order.
+    rgba : (N, 4) float64           the samples' RGBA (``sample_rgba`` reshaped).
+    position : (N, 2) float64       their full-frame raster positions (``subpixel_samples``).
+    owner : (N,) int64              the index into ``pixels`` of the pixel each sample was drawn for.
+    pixels : (P,) int64             the supersampled window-local pixels.
+    counts : int or (P,) int64      samples drawn for each of them (S_q).
     window : (x0, y0, x1, y1)       the camera window (full-frame pixel bounds).
 
     Returns
@@ -257,11 +259,12 @@ def pool_samples(rgba: np.ndarray, position: np.ndarray, pixels: np.ndarray, win
     width = x1 - x0
     index = np.full((y1 - y0) * width, -1, np.int64)
     index[pixels] = np.arange(len(pixels))
+    drawn = np.zeros(len(pixels) + 1)  # samples per pooled pixel; the last entry (index -1) is "none"
+    drawn[:-1] = counts
     reach = settings.filter_reach
     steps = np.arange(-int(np.ceil(reach + 0.5)), int(np.ceil(reach + 0.5)) + 1)  # (J,) candidate offsets
     filter_width, filter_type = settings.effective_filter_width, settings.filter_type
     totals = np.zeros((len(pixels), 5))  # RGBA and the sum of weights
-    parent = np.repeat(np.arange(len(pixels)), samples)
     for start in range(0, len(position), POOL_BATCH):  # batches of samples
         rows = slice(start, start + POOL_BATCH)
         point = position[rows]
@@ -275,7 +278,7 @@ def pool_samples(rgba: np.ndarray, position: np.ndarray, pixels: np.ndarray, win
         local = (np.clip(qy, y0, y1 - 1) - y0)[:, :, None] * width + (np.clip(qx, x0, x1 - 1) - x0)[:, None, :]
         target = index[local]  # (B, J, J): the supersampled pixel there, or -1
         density = density_y[:, :, None] * density_x[:, None, :] * (target >= 0)
-        mixture = samples * density.sum(axis=(1, 2))  # how densely all pooled pixels sample this point
+        mixture = (drawn[target] * density).sum(axis=(1, 2))  # how densely all pooled pixels sample here
         # A sample lies where its own pixel's density is positive, so the mixture is too; guard rounding.
         lonely = mixture <= 0.0
         if lonely.any():
@@ -290,6 +293,7 @@ def pool_samples(rgba: np.ndarray, position: np.ndarray, pixels: np.ndarray, win
         for channel in range(5):  # RGBA and the weights
             totals[:, channel] += np.bincount(pixel, weights=weight * values[owner, channel], minlength=len(pixels))
         if lonely.any():  # unreachable in exact arithmetic: such a sample counts for its own pixel alone
-            own = parent[rows][lonely]
+            own = owner[rows][lonely]
             np.add.at(totals, own, values[lonely])
     return totals[:, :4] / totals[:, 4:]
+

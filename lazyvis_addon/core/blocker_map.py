@@ -78,17 +78,19 @@ def test_pairs(surface: SurfacePoints, frames: LightFrames, blockers: BlockerPol
     Parameters
     ----------
     surface : SurfacePoints of the whole window; pixel, blocker, light : (N,) int64.
-    progress : advanced by one per batch of pairs (and may cancel), when given.
+    progress : advanced by each batch's pair count (and may cancel), when given.
 
     Returns
     -------
     overlap : (N,) bool   conservative (touching counts).
     umbra : (N,) bool     the blocker alone hides the whole light.
     """
-    starts = range(0, len(pixel), TEST_BATCH)
-    parts = map_batches(lambda start: _test_batch(surface, frames, blockers, pixel[start:start + TEST_BATCH],
-                                                  blocker[start:start + TEST_BATCH], light[start:start + TEST_BATCH]),
-                        starts, threads, progress)
+    # At most TEST_BATCH pairs a batch, but enough batches for every thread (culling a few samples).
+    batch = min(TEST_BATCH, max(4096, -(-len(pixel) // (4 * max(threads, 1)))))
+    starts = range(0, len(pixel), batch)
+    parts = map_batches(lambda start: _test_batch(surface, frames, blockers, pixel[start:start + batch],
+                                                  blocker[start:start + batch], light[start:start + batch]),
+                        starts, threads, progress, [min(batch, len(pixel) - start) for start in starts])
     if not parts:
         return np.zeros(0, bool), np.zeros(0, bool)
     return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])

@@ -12,8 +12,8 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from .antialias import (cull_to_samples, foreign_samples, inherit_blockers, landing_pixels, pool_samples, refine_pixels,
-                        sample_rgba, subpixel_samples)
+from .antialias import (cull_to_samples, foreign_samples, inherit_blockers, landing_pixels, pool_samples,
+                        refine_pixels, sample_rgba, subpixel_samples)
 from .blockers import BlockerPolygons
 from .blocker_map import BlockerMap, build_blocker_map, flood_fill, reference_blocker_map
 from .camera import camera_rays, planar_depth, window_pixels
@@ -150,27 +150,14 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
         pixels = refine_pixels(scene, surface, radiance, (height, width), settings, tracer)
         stats["aa_pixels"] = len(pixels)
         if len(pixels):
-            sub, position, sub_global = subpixel_samples(scene, tracer, extent, pixels, settings, pixel_global)
-            landing = landing_pixels(position)
-            if lazy:
-                sub_map = cull_to_samples(inherit_blockers(outer_map, outer, landing, len(frames)), sub, frames,
-                                          polygons, settings, progress)
-                # A pixel's list holds for the surface seen at its centre, not on another surface seen
-                # between centres (a slat's face: the chapel at filter 1.5 was +8.6% too bright), so those
-                # samples are always verified. Elsewhere a sample can still meet a blocker that parallax
-                # hides at the centre; with verification asked for, every sample is verified.
-                check = sub.hit if verify else foreign_samples(sub, landing, outer_surface, outer)
-                stats["aa_verified_samples"] = int(check.sum())
-                sub_radiance, rays = _shade_verified(sub, frames, polygons, tracer, sub_map, settings, sub_global,
-                                                     progress, scene.materials, check, settings.aa_samples)
-                stats["verify_rays"] += rays
-            else:
-                sub_map = None if settings.integrator == "standard_mc" else \
-                    reference_blocker_map(sub, frames, polygons, (len(sub), 1), settings, progress)
-                sub_radiance, _, _ = _illuminate(sub, frames, polygons, tracer, sub_map, settings, sub_global,
-                                                 progress, scene.materials)
-            rgba = sample_rgba(sub_radiance, sub, scene, settings, settings.aa_samples).reshape(-1, 4)
-            resolved = (pixels, pool_samples(rgba, position, pixels, camera.window, settings.aa_samples, settings))
+            shading = (scene, tracer, extent, settings, pixel_global, frames, polygons, progress, stats,
+                       (outer_map, outer, outer_surface) if lazy else None, verify)
+            samples = settings.aa_samples
+            rgba, position = _shade_samples(pixels, samples, 0, *shading)
+            owner = np.repeat(np.arange(len(pixels)), samples)
+            counts = np.full(len(pixels), samples)
+            stats["aa_samples_shaded"] = int(counts.sum())
+            resolved = (pixels, pool_samples(rgba, position, owner, pixels, counts, camera.window, settings), counts)
 
     progress.begin_stage("Composing passes")
     output = _compose(scene, surface, radiance, blockers, settings, (height, width), resolved)
@@ -219,6 +206,10 @@ def _primary(scene: Scene, tracer, extent: float, settings: Settings, progress: 
     return SurfacePoints(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(SurfacePoints)))
 
 
+# Smallest batch split further for threads: per-batch numpy overheads stay well under the work.
+MIN_SHARED_BATCH = 2048
+
+
 def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: BlockerMap | None, settings: Settings,
                 pixel_global: np.ndarray, progress: Progress, materials, verify: bool = False
                 ) -> tuple[np.ndarray, dict, tuple[np.ndarray, np.ndarray, np.ndarray]]:
@@ -235,7 +226,10 @@ def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: Bloc
     empty = np.zeros(0, np.int64)
     if len(frames) == 0:
         return radiance, stats, (empty, empty, empty)
-    batch = settings.pixel_batch
+    # Batches of at most pixel_batch, but enough of them to keep every thread busy: anti-aliasing shades
+    # sets of a few thousand samples, which one batch would leave to one core.
+    threads = thread_count(settings.threads)
+    batch = min(settings.pixel_batch, max(MIN_SHARED_BATCH, -(-n_pixels // (4 * threads))))
     # Entries are sorted by pixel, so each batch's entries form one contiguous run.
     entry_bounds = None
     if blockers is not None:
@@ -280,8 +274,7 @@ def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: Bloc
     progress.begin_stage("Illumination", n_pixels)
     units = [min(start + batch, n_pixels) - start for start in starts]
     found = []
-    for start, stop, result, n_pieces, rounds, missed in map_batches(shade, range(len(starts)),
-                                                                     thread_count(settings.threads), progress,
+    for start, stop, result, n_pieces, rounds, missed in map_batches(shade, range(len(starts)), threads, progress,
                                                                      units):
         radiance[start:stop] = result
         stats["pieces"] += n_pieces
@@ -344,22 +337,54 @@ def _shade_verified(surface: SurfacePoints, frames, polygons, tracer, blockers: 
     return radiance, rays
 
 
+def _shade_samples(pixels: np.ndarray, samples: int, first: int, scene: Scene, tracer, extent: float,
+                   settings: Settings, pixel_global: np.ndarray, frames, polygons, progress: Progress, stats: dict,
+                   lazy_state, verify: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Shade ``samples`` anti-aliasing samples (Sobol points ``first`` onwards) of each of ``pixels`` (P,).
+
+    ``lazy_state`` is (outer_map, outer window, outer_surface) of the lazy integrators, None otherwise.
+    Returns (P * samples, 4) RGBA and (P * samples, 2) raster positions, pixel-major.
+    """
+    sub, position, sub_global = subpixel_samples(scene, tracer, extent, pixels, settings, pixel_global, samples, first)
+    landing = landing_pixels(position)
+    if lazy_state is not None:
+        outer_map, outer, outer_surface = lazy_state
+        sub_map = cull_to_samples(inherit_blockers(outer_map, outer, landing, len(frames)), sub, frames,
+                                  polygons, settings, progress)
+        # A pixel's list holds for the surface seen at its centre, not on another surface seen
+        # between centres (a slat's face: the chapel at filter 1.5 was +8.6% too bright), so those
+        # samples are always verified. Elsewhere a sample can still meet a blocker that parallax
+        # hides at the centre; with verification asked for, every sample is verified.
+        check = sub.hit if verify else foreign_samples(sub, landing, outer_surface, outer)
+        stats["aa_verified_samples"] = stats.get("aa_verified_samples", 0) + int(check.sum())
+        sub_radiance, rays = _shade_verified(sub, frames, polygons, tracer, sub_map, settings, sub_global,
+                                             progress, scene.materials, check, samples)
+        stats["verify_rays"] += rays
+    else:
+        sub_map = None if settings.integrator == "standard_mc" else \
+            reference_blocker_map(sub, frames, polygons, (len(sub), 1), settings, progress)
+        sub_radiance, _, _ = _illuminate(sub, frames, polygons, tracer, sub_map, settings, sub_global,
+                                         progress, scene.materials)
+    return sample_rgba(sub_radiance, sub, scene, settings, samples).reshape(-1, 4), position
+
+
+def _compose_rgba(scene: Scene, surface: SurfacePoints, radiance: np.ndarray, settings: Settings) -> np.ndarray:
+    """(N, 4) RGBA of points shaded at pixel centres: radiance plus emission where hit, background elsewhere."""
+    return sample_rgba(radiance, surface, scene, settings, 1).reshape(-1, 4)
+
+
 def _compose(scene: Scene, surface: SurfacePoints, radiance: np.ndarray, blockers: BlockerMap | None,
              settings: Settings, shape: tuple[int, int], resolved=None) -> RenderOutput:
-    """The passes of the window; ``resolved`` = (pixels, (P, 4) RGBA) replaces anti-aliased pixels."""
+    """The passes of the window; ``resolved`` = (pixels, (P, 4) RGBA, (P,) samples) replaces anti-aliased
+    pixels."""
     height, width = shape
     n_pixels = height * width
     hit = surface.hit
-    combined = np.zeros((n_pixels, 4), np.float32)
-    combined[hit, :3] = radiance[hit] + surface.emission[hit]
-    combined[hit, 3] = 1.0
-    if not settings.transparent_background:
-        combined[~hit, :3] = scene.background
-        combined[~hit, 3] = 1.0
+    combined = _compose_rgba(scene, surface, radiance, settings).astype(np.float32)
     sample_count = np.ones(n_pixels, np.int32)
     if resolved is not None:
         combined[resolved[0]] = resolved[1]
-        sample_count[resolved[0]] = settings.aa_samples
+        sample_count[resolved[0]] = resolved[2]
     depth = np.full(n_pixels, BACKGROUND_DEPTH, np.float32)
     depth[hit] = planar_depth(scene.camera, surface.position[hit])
     normal = np.zeros((n_pixels, 3), np.float32)
