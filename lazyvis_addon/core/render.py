@@ -43,7 +43,7 @@ class RenderOutput:
     umbra : (H, W, L) bool           the light is hidden at this pixel (umbra detection).
     depth : (H, W) float32           planar camera depth, BACKGROUND_DEPTH where nothing is hit.
     normal : (H, W, 3) float32       world-space shading normal facing the camera (0 on background).
-    sample_count : (H, W) int32      camera samples averaged in the pixel: ``aa_samples`` where anti-aliased,
+    sample_count : (H, W) int32      camera samples drawn for the pixel: ``aa_samples`` where anti-aliased,
                                      1 where the centre was shaded alone.
     warnings : list[str]
     stats : dict                     stage seconds, rays, pairs, peak memory.
