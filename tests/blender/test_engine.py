@@ -270,7 +270,9 @@ def test_nan_vertex_is_an_error_through_report(scene, capfd):
 @needs_core
 def test_transparent_film_clears_background_alpha(scene, tmp_path):
     add_camera(scene)
-    bpy.ops.mesh.primitive_plane_add(size=1.0)
+    # A plane ~15 px across: its centre pixel lies beyond the 1.5 px filter's reach of the background,
+    # whose samples would otherwise (rightly) pull the filtered alpha below 1.
+    bpy.ops.mesh.primitive_plane_add(size=2.5)
     add_area_light(location=(0.0, 0.0, 2.0), size=1.0, energy=20.0)
     scene.render.film_transparent = True
     combined = render_to_exr(scene, tmp_path / "alpha.exr")["RGBA"]
