@@ -153,7 +153,7 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
             shading = (scene, tracer, extent, settings, pixel_global, frames, polygons, progress, stats,
                        (outer_map, outer, outer_surface) if lazy else None, verify)
             samples = settings.aa_samples
-            rgba, position = _shade_samples(pixels, samples, 0, *shading)
+            rgba, position = _shade_samples(pixels, samples, *shading)
             owner = np.repeat(np.arange(len(pixels)), samples)
             counts = np.full(len(pixels), samples)
             stats["aa_samples_shaded"] = int(counts.sum())
@@ -337,15 +337,15 @@ def _shade_verified(surface: SurfacePoints, frames, polygons, tracer, blockers: 
     return radiance, rays
 
 
-def _shade_samples(pixels: np.ndarray, samples: int, first: int, scene: Scene, tracer, extent: float,
+def _shade_samples(pixels: np.ndarray, samples: int, scene: Scene, tracer, extent: float,
                    settings: Settings, pixel_global: np.ndarray, frames, polygons, progress: Progress, stats: dict,
                    lazy_state, verify: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Shade ``samples`` anti-aliasing samples (Sobol points ``first`` onwards) of each of ``pixels`` (P,).
+    """Shade ``samples`` anti-aliasing samples of each of ``pixels`` (P,).
 
     ``lazy_state`` is (outer_map, outer window, outer_surface) of the lazy integrators, None otherwise.
     Returns (P * samples, 4) RGBA and (P * samples, 2) raster positions, pixel-major.
     """
-    sub, position, sub_global = subpixel_samples(scene, tracer, extent, pixels, settings, pixel_global, samples, first)
+    sub, position, sub_global = subpixel_samples(scene, tracer, extent, pixels, settings, pixel_global, samples)
     landing = landing_pixels(position)
     if lazy_state is not None:
         outer_map, outer, outer_surface = lazy_state
@@ -368,11 +368,6 @@ def _shade_samples(pixels: np.ndarray, samples: int, first: int, scene: Scene, t
     return sample_rgba(sub_radiance, sub, scene, settings, samples).reshape(-1, 4), position
 
 
-def _compose_rgba(scene: Scene, surface: SurfacePoints, radiance: np.ndarray, settings: Settings) -> np.ndarray:
-    """(N, 4) RGBA of points shaded at pixel centres: radiance plus emission where hit, background elsewhere."""
-    return sample_rgba(radiance, surface, scene, settings, 1).reshape(-1, 4)
-
-
 def _compose(scene: Scene, surface: SurfacePoints, radiance: np.ndarray, blockers: BlockerMap | None,
              settings: Settings, shape: tuple[int, int], resolved=None) -> RenderOutput:
     """The passes of the window; ``resolved`` = (pixels, (P, 4) RGBA, (P,) samples) replaces anti-aliased
@@ -380,7 +375,7 @@ def _compose(scene: Scene, surface: SurfacePoints, radiance: np.ndarray, blocker
     height, width = shape
     n_pixels = height * width
     hit = surface.hit
-    combined = _compose_rgba(scene, surface, radiance, settings).astype(np.float32)
+    combined = sample_rgba(radiance, surface, scene, settings, 1).reshape(-1, 4).astype(np.float32)
     sample_count = np.ones(n_pixels, np.int32)
     if resolved is not None:
         combined[resolved[0]] = resolved[1]
