@@ -125,8 +125,7 @@ def subpixel_samples(scene: Scene, tracer, extent: float, pixels: np.ndarray, se
     samples = settings.aa_samples if samples is None else samples
     xs, ys = window_pixels(camera)
     parent = np.repeat(pixels, samples)
-    stratum = np.tile(np.arange(samples), len(pixels))
-    sample = first + stratum
+    sample = first + np.tile(np.arange(samples), len(pixels))
     # Sobol points: strata of every shape at any power-of-two count, and a later batch continues them.
     u = rng.sobol_2d(settings.seed, settings.frame, rng.STREAM_FILM, pixel_global[parent], sample)
     offset = filter_offsets(u, settings.effective_filter_width, settings.filter_type)
