@@ -96,7 +96,7 @@ def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 # ------------------------------------------------------------------------------------------------------
 
 def clip_convex(points: np.ndarray, count: np.ndarray, side: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Keep the part of each convex polygon where the affine function ``side`` is >= 0 (Sutherland–Hodgman).
+    """Keep the part of each convex polygon where the affine function ``side`` is >= 0 (see ``split_convex``).
 
     Parameters
     ----------
@@ -109,80 +109,80 @@ def clip_convex(points: np.ndarray, count: np.ndarray, side: np.ndarray) -> tupl
 
     Returns
     -------
-    clipped : (N, K + 1, D) float64, padded by repeating the last vertex.
+    clipped : (N, K + 1, D) float64, padded by repeating the last vertex (zeros where nothing remains).
     clipped_count : (N,) int64, 0 where nothing (or less than a triangle) remains.
     """
     return split_convex(points, count, side, want_outside=False)[:2]
 
 
 def split_convex(points: np.ndarray, count: np.ndarray, side: np.ndarray, want_outside: bool = True):
-    """Both parts of each convex polygon cut by the line ``side`` = 0: where side >= 0 and where side <= 0.
+    """Both parts of each convex polygon cut by the line ``side`` = 0: where side >= 0 and where side < 0.
 
-    Same parameters as ``clip_convex``; the two parts share their successor arrays and crossing points.
+    Same parameters as ``clip_convex``. A convex polygon's inside vertices form one cyclic run, entered
+    and left across one edge each, so each part is a gather: its run of vertices from where it starts,
+    then the crossing where it ends and the crossing where it began (the original winding).
 
     Returns
     -------
-    inside, inside_count, outside, outside_count : as ``clip_convex`` returns, for side >= 0 and side <= 0
-    (``outside`` is None when ``want_outside`` is False).
+    inside, inside_count, outside, outside_count : as ``clip_convex`` returns, for side >= 0 and side < 0
+    (``outside`` is None when ``want_outside`` is False). A vertex on the line belongs to the inside run;
+    the outside part reaches it through a crossing at the vertex itself.
     """
     n, k, dims = points.shape
     rows = np.arange(n)
     last = np.maximum(count - 1, 0)
     valid = np.arange(k)[None, :] < count[:, None]
 
-    def crossings(side):
-        # Each vertex's successor along the polygon: the next slot, except that the last real vertex
-        # closes onto vertex 0.
-        side_next = np.roll(side, -1, axis=1)
-        side_next[rows, last] = side[:, 0]
-        cross_in = ((side >= 0.0) != (side_next >= 0.0)) & valid
-        # Only the outside part needs its own crossings (clip_convex, in the hot paths, skips them).
-        cross_out = ((side <= 0.0) != (side_next <= 0.0)) & valid if want_outside else None
-        return side_next, cross_in, cross_out
+    def runs(side):
+        inside = side >= 0.0
+        # Each vertex's successor: the next slot, except that the last real vertex closes onto vertex 0.
+        inside_next = np.roll(inside, -1, axis=1)
+        inside_next[rows, last] = inside[:, 0]
+        return inside, (inside != inside_next) & valid
 
-    side_next, cross_in, cross_out = crossings(side)
+    inside, change = runs(side)
     # A convex polygon crosses a line at most twice. Nearly collinear vertices lying within rounding of
     # the line can alternate sides and cross it more often (seen on the chapel's slats at 64 samples per
-    # pixel), which would overflow the K + 1 output slots: such a polygon touches the line only within
-    # rounding, so it is kept whole on the side where its vertices lean.
-    tangled = cross_in.sum(axis=1) > 2
-    if want_outside:
-        tangled |= cross_out.sum(axis=1) > 2
+    # pixel): such a polygon touches the line only within rounding, so it is kept whole on the side where
+    # its vertices lean.
+    tangled = change.sum(axis=1) > 2
     if tangled.any():
         side = side.copy()
-        lean = np.where(np.where(valid[tangled], side[tangled], 0.0).sum(axis=1) >= 0.0, 1.0, -1.0)
-        side[tangled] = lean[:, None]
-        side_next, cross_in, cross_out = crossings(side)
-    points_next = np.roll(points, -1, axis=1)
-    points_next[rows, last] = points[:, 0]
-    keep_in = side >= 0.0
-    crossing_mask = cross_in | cross_out if want_outside else cross_in
-    crossing = np.zeros_like(points)
-    row, col = np.nonzero(crossing_mask)
-    frac = (side[row, col] / (side[row, col] - side_next[row, col]))[:, None]
-    crossing[row, col] = points[row, col] + frac * (points_next[row, col] - points[row, col])
-    inside, inside_count = _assemble(points, crossing, keep_in & valid, cross_in)
+        side[tangled] = np.where(np.where(valid[tangled], side[tangled], 0.0).sum(axis=1) >= 0.0, 1.0, -1.0
+                                 )[:, None]
+        inside, change = runs(side)
+    n_inside = (inside & valid).sum(axis=1)
+    # The edge leaving the inside run and the edge entering it (edge i joins vertex i to its successor).
+    exit_edge = np.argmax(change & inside, axis=1)
+    enter_edge = np.argmax(change & ~inside, axis=1)
+    exit_next = np.where(exit_edge == last, 0, exit_edge + 1)
+    enter_next = np.where(enter_edge == last, 0, enter_edge + 1)
+
+    def crossing(edge, following):
+        a, b = side[rows, edge], side[rows, following]
+        with np.errstate(divide="ignore", invalid="ignore"):  # rows without crossings are never gathered
+            return points[rows, edge] + (a / (a - b))[:, None] * (points[rows, following] - points[rows, edge])
+
+    # Slots k and k + 1: the exit and entry crossings; slot k + 2: zeros for empty parts.
+    extended = np.concatenate([points, crossing(exit_edge, exit_next)[:, None],
+                               crossing(enter_edge, enter_next)[:, None], np.zeros((n, 1, dims))], axis=1)
+    slot = np.arange(k + 1)[None, :]
+    cut = (n_inside > 0) & (n_inside < count)
+
+    def part(run_start, run_length, end_crossing, start_crossing, whole):
+        """Gather one part (N, K + 1, D) and its count; ``whole`` rows keep the polygon as it is."""
+        index = np.where(slot < run_length[:, None], (run_start[:, None] + slot) % np.maximum(count, 1)[:, None],
+                         np.where(slot == run_length[:, None], end_crossing, start_crossing))
+        index = np.where(whole[:, None], np.minimum(slot, last[:, None]), index)
+        part_count = np.where(cut, run_length + 2, np.where(whole, count, 0))
+        index = np.where((part_count < 3)[:, None], k + 2, index)
+        return np.take_along_axis(extended, index[:, :, None], axis=1), np.where(part_count >= 3, part_count, 0)
+
+    inside_part, inside_count = part(enter_next, n_inside, k, k + 1, n_inside == count)
     if not want_outside:
-        return inside, inside_count, None, None
-    outside, outside_count = _assemble(points, crossing, (side <= 0.0) & valid, cross_out)
-    return inside, inside_count, outside, outside_count
-
-
-def _assemble(points, crossing, emit_vertex, emit_cross):
-    """Compact the emitted vertices and crossings (per edge i: vertex i, then the crossing on edge i)."""
-    n, k, dims = points.shape
-    emitted = emit_vertex.astype(np.int64) + emit_cross
-    start = np.cumsum(emitted, axis=1) - emitted
-    total = emitted.sum(axis=1)
-    out = np.zeros((n, k + 1, dims))
-    row, col = np.nonzero(emit_vertex)
-    out[row, start[row, col]] = points[row, col]
-    row, col = np.nonzero(emit_cross)
-    out[row, start[row, col] + emit_vertex[row, col]] = crossing[row, col]
-    # Pad by repeating the last vertex: gather every slot from min(slot, total - 1).
-    fill = np.minimum(np.arange(k + 1)[None, :], np.maximum(total - 1, 0)[:, None])
-    out = np.take_along_axis(out, fill[:, :, None], axis=1)
-    return out, np.where(total >= 3, total, 0)
+        return inside_part, inside_count, None, None
+    outside_part, outside_count = part(exit_next, count - n_inside, k + 1, k, (n_inside == 0) & (count > 0))
+    return inside_part, inside_count, outside_part, outside_count
 
 
 def polygon_area_2d(uv: np.ndarray) -> np.ndarray:
@@ -415,8 +415,12 @@ def receiver_light(position: np.ndarray, geometric_normal: np.ndarray, shading_n
     for normal in (geometric_normal, shading_normal):  # the two horizons
         line = plane_lines(normal[:, None, :], rel, light, frames)[:, 0]
         value = line[:, 0, None] * uv[..., 0] + line[:, 1, None] * uv[..., 1] + line[:, 2, None]
-        if (value < 0).any():
-            uv, count = clip_convex(uv, count, value)
+        # Only lights the horizon cuts are clipped (padding repeats a real vertex, so it adds no row).
+        cut = np.flatnonzero((value < 0).any(axis=1) & (count > 0))
+        if len(cut):
+            clipped, count[cut] = clip_convex(uv[cut], count[cut], value[cut])
+            uv = np.concatenate([uv, np.repeat(uv[:, -1:], clipped.shape[1] - uv.shape[1], axis=1)], axis=1)
+            uv[cut] = clipped
             uv = trim(uv, count)
     local = np.stack([np.einsum("nk,nk->n", rel, frames.tangent[light]),
                       np.einsum("nk,nk->n", rel, frames.bitangent[light]), height], axis=1)
