@@ -73,7 +73,9 @@ class LazyVisSceneSettings(bpy.types.PropertyGroup):
                                           "point seen through a pixel has its blockers (paper section 4.4)")
     merge_quads: BoolProperty(name="Merge Quads", default=_DEFAULTS.merge_quads,
                               description="Treat coplanar triangle pairs that form convex quads as one blocker "
-                                          "polygon (faster; the image is the same up to rounding)")
+                                          "polygon, and clip by the silhouettes of closed convex parts (boxes, "
+                                          "posts) instead of by their faces (faster; the same image up to "
+                                          "rounding)")
     seed: IntProperty(name="Seed", default=_DEFAULTS.seed, min=0,
                       description="Random seed; with the frame number it fixes every random number")
     disk_vertices: IntProperty(name="Disk Vertices", default=DISK_VERTICES_DEFAULT, min=3, soft_max=128,

@@ -14,8 +14,8 @@ The window's outermost pixels have neighbours outside it, which the filter (radi
 reaches as well: a ring of camera rays one pixel outside the window tells whether those see another
 polygon or material (their radiance is not computed, so radiance steps just outside are not seen).
 
-A sample's inherited list is cut to the pairs that overlap at the sample (``cull_to_samples``). It need not
-hold where the sample sees another surface than the pixel's centre (``foreign_samples``): the render
+A sample's inherited list is cut to the pairs that overlap at the sample (``cull_to_samples``; a closed
+convex part's pairs stay, as pass 2 clips by the part's whole silhouette). It need not hold where the sample sees another surface than the pixel's centre (``foreign_samples``): the render
 verifies those samples with shadow rays (render._shade_verified).
 """
 
@@ -206,7 +206,12 @@ def cull_to_samples(blockers: BlockerMap, sub, frames, polygons, settings: Setti
     hidden = np.zeros_like(blockers.umbra)
     if settings.umbra_detection:
         hidden[blockers.pixel[umbra], blockers.light[umbra]] = True
-    keep = overlap & ~hidden[blockers.pixel, blockers.light]
+    # A pair of a closed convex part stays even where its own face misses the light: pass 2 clips by the
+    # part's whole silhouette, which covers the part's faces the pixel's list lacks (faces seen nearly
+    # edge-on overlap a light only between pixel centres, where no fill reaches them).
+    parts = polygons.parts
+    in_part = parts.of_blocker[blockers.blocker] >= 0 if parts is not None else np.zeros(len(overlap), bool)
+    keep = (overlap | in_part) & ~hidden[blockers.pixel, blockers.light]
     return BlockerMap(blockers.pixel[keep], blockers.light[keep], blockers.blocker[keep], blockers.umbra | hidden)
 
 
@@ -261,7 +266,10 @@ def pool_samples(rgba: np.ndarray, position: np.ndarray, owner: np.ndarray, pixe
     drawn = np.zeros(len(pixels) + 1)  # samples per pooled pixel; the last entry (index -1) is "none"
     drawn[:-1] = counts
     reach = settings.filter_reach
-    steps = np.arange(-int(np.ceil(reach + 0.5)), int(np.ceil(reach + 0.5)) + 1)  # (J,) candidate offsets
+    # (J,) candidate pixel offsets from the cell a sample lies in: a pixel q reaches a sample at offset
+    # t = x - q in [0.5 - reach, 0.5 + reach], so with x - cell in [0, 1) q - cell runs from
+    # ceil(-0.5 - reach) to below ceil(0.5 + reach) (4 offsets at the default radius 1.5).
+    steps = np.arange(int(np.ceil(-0.5 - reach)), int(np.ceil(0.5 + reach)))
     filter_width, filter_type = settings.effective_filter_width, settings.filter_type
     totals = np.zeros((len(pixels), 5))  # RGBA and the sum of weights
     for start in range(0, len(position), POOL_BATCH):  # batches of samples

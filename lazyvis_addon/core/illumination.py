@@ -16,9 +16,9 @@ import numpy as np
 
 from . import rng
 from .blocker_map import BlockerMap, first_blocker
-from .blockers import BlockerPolygons
+from .blockers import BlockerPolygons, silhouette_planes
 from .bsdf import SurfaceBsdf
-from .geometry import (LightFrames, ReceiverLight, blocker_in_front_of_light, cone_planes, split_convex,
+from .geometry import (PLANE_EPS, LightFrames, ReceiverLight, blocker_in_front_of_light, cone_planes, split_convex,
                        plane_lines, polygon_area_2d, projected_solid_angle, receiver_light, trim)
 from .ggx import ROUGHNESS_SQ_THRESHOLD, alpha_from_roughness, ggx_reflection_pdf, sample_ggx_reflection
 from .ltc import ltc_shape_integral
@@ -98,7 +98,8 @@ def visible_pieces(surface: SurfacePoints, frames: LightFrames, polygons: Blocke
     if len(entry_couple) == 0:
         return VisiblePieces(couples, couple_pixel, pieces_uv, pieces_count, pieces_couple)
 
-    lines, line_valid = _blocker_lines(surface, frames, polygons, couples, couple_pixel, entry_couple, entry_blocker)
+    entry_couple, lines, line_valid = _cone_lines(surface, frames, polygons, couples, couple_pixel, entry_couple,
+                                                  entry_blocker)
     order = np.argsort(entry_couple, kind="stable")
     entry_couple, lines, line_valid = entry_couple[order], lines[order], line_valid[order]
     first = np.searchsorted(entry_couple, np.arange(len(couple_pixel)))
@@ -124,6 +125,60 @@ def visible_pieces(surface: SurfacePoints, frames: LightFrames, polygons: Blocke
             (pieces_uv[~drop], pieces_count[~drop], pieces_couple[~drop]), (new_uv, new_count, new_couple))
     pieces_uv, pieces_count, pieces_couple = _concat_pieces(*finished, (pieces_uv, pieces_count, pieces_couple))
     return VisiblePieces(couples, couple_pixel, pieces_uv, pieces_count, pieces_couple, rounds)
+
+
+def _cone_lines(surface, frames, polygons, couples, couple_pixel, entry_couple, entry_blocker):
+    """The cones that cut each couple's light, as lines in its plane.
+
+    Blockers of one closed convex part (``polygons.parts``) in a couple's list become one cone through the
+    part's silhouette: the part's faces turned towards the receiver tile that cone, and clipping by each
+    of them would cut the light along the edges they share. Where the silhouette cannot be used (the part
+    holds the receiver, reaches behind the light, or shows too many edges) the faces clip one by one.
+
+    Returns
+    -------
+    cone_couple : (E',) int64   couple of each cone; lines : (E', S, 3); valid : (E', S) bool.
+    """
+    parts = polygons.parts
+    if parts is None or len(parts) == 0:
+        return (entry_couple,) + _blocker_lines(surface, frames, polygons, couples, couple_pixel, entry_couple,
+                                                entry_blocker)
+    part = parts.of_blocker[entry_blocker]
+    pixel = couple_pixel[entry_couple]
+    own = parts.of_blocker[polygons.of_triangle[np.maximum(surface.index_triangle[pixel], 0)]]
+    grouped = np.flatnonzero((part >= 0) & (part != own))
+    key = entry_couple[grouped] * len(parts) + part[grouped]
+    group_key, group_of = np.unique(key, return_inverse=True)
+    group_couple, group_part = group_key // len(parts), group_key % len(parts)
+    receiver = surface.position[couple_pixel[group_couple]]
+    planes, valid, usable = silhouette_planes(parts, group_part, receiver)
+    # Every vertex of the part strictly in front of the light, as blocker_in_front_of_light asks of a face.
+    light = couples.light[group_couple]
+    vertices = parts.vertices[group_part]
+    height = couples.side[group_couple][:, None] * np.einsum("nvk,nk->nv", vertices - frames.origin[light][:, None],
+                                                             frames.normal[light])
+    scale = np.abs(vertices - receiver[:, None]).max(axis=(1, 2)) + np.abs(receiver).max(axis=1)
+    usable &= (height > PLANE_EPS * scale[:, None]).all(axis=1)
+    face_wise = np.ones(len(entry_couple), bool)
+    face_wise[grouped[usable[group_of.ravel()]]] = False
+    face_couple = entry_couple[face_wise]
+    face_lines, face_valid = _blocker_lines(surface, frames, polygons, couples, couple_pixel, face_couple,
+                                            entry_blocker[face_wise])
+    cone_couple = group_couple[usable]
+    cone_lines = plane_lines(planes[usable], couples.receiver_in_light[cone_couple], couples.light[cone_couple],
+                             frames)
+    width = max(face_lines.shape[1], cone_lines.shape[1])
+    return (np.concatenate([face_couple, cone_couple]),
+            np.concatenate([_pad_lines(face_lines, width), _pad_lines(cone_lines, width)]),
+            np.concatenate([_pad_lines(face_valid, width), _pad_lines(valid[usable], width)]))
+
+
+def _pad_lines(values: np.ndarray, width: int) -> np.ndarray:
+    """Pad (E, S, ...) lines or validity flags to S = width with zeros (False: not a cone face)."""
+    if values.shape[1] >= width:
+        return values
+    pad = np.zeros((values.shape[0], width - values.shape[1]) + values.shape[2:], values.dtype)
+    return np.concatenate([values, pad], axis=1)
 
 
 def _blocker_lines(surface, frames, polygons, couples, couple_pixel, entry_couple, entry_blocker):

@@ -76,8 +76,9 @@ class Settings:
     pixel_batch : int
         Pixels per batch in pass 2 and for camera rays (progress and cancel granularity).
     merge_quads : bool
-        Merge coplanar triangle pairs that form convex quads into one blocker polygon (fewer pairs and
-        pieces; the image is the same up to rounding).
+        Merge coplanar triangle pairs that form convex quads into one blocker polygon, and clip by the
+        silhouette of each closed convex part (a box, a post) instead of by each of its faces: fewer pairs
+        and pieces; the image is the same up to rounding, or more exact where a list lacks a part's face.
     threads : int
         Worker threads for the batched stages; 0 means one per core.
     window_margin : int
