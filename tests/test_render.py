@@ -10,7 +10,7 @@ import pytest
 
 from lazyvis_addon.core import Camera, Lights, Materials, Progress, RenderCancelled, Scene, Settings, render
 from lazyvis_addon.core import demo_scenes
-from lazyvis_addon.core.blocker_map import BlockerMap, detect_seeds
+from lazyvis_addon.core.blocker_map import BlockerMap, detect_seeds, reference_blocker_map
 from lazyvis_addon.core.blockers import BlockerPolygons
 from lazyvis_addon.core.demo_scenes import plane_under_light, quad_triangles
 from lazyvis_addon.core.geometry import light_frames, projected_solid_angle
@@ -367,11 +367,31 @@ def test_blockers_without_a_cone_remove_nothing():
     everything = np.arange(len(polygons))  # the plane's own quad and the triangle under the plane
     blockers = BlockerMap.from_entries(np.zeros(len(everything), int), np.zeros(len(everything), int), everything,
                                        np.zeros((1, 1), bool))
-    with_junk = analytic(visible_pieces(surface, frames, polygons, blockers), surface, frames)
     empty = BlockerMap.from_entries(np.zeros(0, int), np.zeros(0, int), np.zeros(0, int), np.zeros((1, 1), bool))
     clean = analytic(visible_pieces(surface, frames, polygons, empty), surface, frames)
     assert clean[0] > 0
-    assert with_junk[0] == pytest.approx(clean[0], rel=1e-12)
+    for signed in (False, True):
+        with_junk = analytic(visible_pieces(surface, frames, polygons, blockers, signed=signed), surface, frames)
+        assert with_junk[0] == pytest.approx(clean[0], rel=1e-12)
+
+
+@pytest.mark.parametrize("merge", [False, True])
+def test_signed_terms_integrate_like_disjoint_pieces(merge):
+    """Inclusion–exclusion terms give Lambert's formula the same value as the disjoint pieces, with every
+    blocker of every pixel in the lists (overlapping triangles of one box, boxes behind boxes)."""
+    scene = demo_scenes.floating_boxes(resolution=40, n_boxes=16).validated()
+    tracer = RayTracer(scene.triangles)
+    surface = _primary(scene, tracer, scene_extent(scene), Settings(), Progress())
+    frames = light_frames(scene.lights)
+    polygons = BlockerPolygons.from_triangles(scene.triangles, merge=merge)
+    blockers = reference_blocker_map(surface, frames, polygons, scene.camera.window_shape, Settings(), Progress())
+    disjoint = visible_pieces(surface, frames, polygons, blockers)
+    signed = visible_pieces(surface, frames, polygons, blockers, signed=True)
+    assert disjoint.sign is None and set(np.unique(signed.sign)) == {-1.0, 1.0}
+    assert signed.max_rounds >= (2 if merge else 3)  # couples cut by several blockers at once
+    expected = analytic(disjoint, surface, frames)
+    assert (expected > 0).mean() > 0.3 and (expected == 0).any()  # lit, shadowed and hidden couples
+    np.testing.assert_allclose(analytic(signed, surface, frames), expected, rtol=1e-9, atol=1e-13 * expected.max())
 
 
 def test_extended_fill_adds_a_boundary_ring_and_only_corrects_pixels(boxes_scene):

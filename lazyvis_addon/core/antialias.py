@@ -15,8 +15,9 @@ reaches as well: a ring of camera rays one pixel outside the window tells whethe
 polygon or material (their radiance is not computed, so radiance steps just outside are not seen).
 
 A sample's inherited list is cut to the pairs that overlap at the sample (``cull_to_samples``; a closed
-convex part's pairs stay, as pass 2 clips by the part's whole silhouette). It need not hold where the sample sees another surface than the pixel's centre (``foreign_samples``): the render
-verifies those samples with shadow rays (render._shade_verified).
+convex part's pairs stay, as pass 2 clips by the part's whole silhouette). It need not hold where the
+sample sees another surface than the pixel's centre (``foreign_samples``): the render verifies those
+samples with shadow rays (render._shade_verified).
 """
 
 from __future__ import annotations
@@ -192,26 +193,31 @@ def inherit_blockers(blockers: BlockerMap, grid: tuple[int, int, int, int], land
 
 
 def cull_to_samples(blockers: BlockerMap, sub, frames, polygons, settings: Settings, progress) -> BlockerMap:
-    """The inherited lists cut down to the pairs that overlap at each sample, with umbra per sample.
+    """The inherited lists cut down to the pairs that overlap at each sample, with umbra per sample (pairs
+    of closed convex parts are kept as they are).
 
     A pixel's list holds every pair needed anywhere in the pixel; at one sample most of them miss the light
     (Suzanne at 96 px: 17 pairs per sample inherited). The flood fill's cone test, conservative, drops
     those before pass 2 clips by them, and a blocker that alone hides a light from the sample (umbra, when
     umbra detection is on) skips that light there.
     """
-    progress.begin_stage("Sample blockers", len(blockers.pixel))
-    overlap, umbra = test_pairs(sub, frames, polygons, blockers.pixel, blockers.blocker, blockers.light,
-                                thread_count(settings.threads), progress)
+    # A pair of a closed convex part stays untested even where its own face misses the light: pass 2 clips
+    # by the part's whole silhouette, which covers the part's faces the pixel's list lacks (faces seen
+    # nearly edge-on overlap a light only between pixel centres, where no fill reaches them), and drops a
+    # silhouette that misses the light, or hides it, at its first test.
+    parts = polygons.parts
+    in_part = parts.of_blocker[blockers.blocker] >= 0 if parts is not None else np.zeros(len(blockers.pixel), bool)
+    tested = np.flatnonzero(~in_part)
+    progress.begin_stage("Sample blockers", len(tested))
+    overlap, umbra = test_pairs(sub, frames, polygons, blockers.pixel[tested], blockers.blocker[tested],
+                                blockers.light[tested], thread_count(settings.threads), progress)
     progress.end_stage()
     hidden = np.zeros_like(blockers.umbra)
     if settings.umbra_detection:
-        hidden[blockers.pixel[umbra], blockers.light[umbra]] = True
-    # A pair of a closed convex part stays even where its own face misses the light: pass 2 clips by the
-    # part's whole silhouette, which covers the part's faces the pixel's list lacks (faces seen nearly
-    # edge-on overlap a light only between pixel centres, where no fill reaches them).
-    parts = polygons.parts
-    in_part = parts.of_blocker[blockers.blocker] >= 0 if parts is not None else np.zeros(len(overlap), bool)
-    keep = (overlap | in_part) & ~hidden[blockers.pixel, blockers.light]
+        hidden[blockers.pixel[tested[umbra]], blockers.light[tested[umbra]]] = True
+    keep = in_part.copy()
+    keep[tested[overlap]] = True
+    keep &= ~hidden[blockers.pixel, blockers.light]
     return BlockerMap(blockers.pixel[keep], blockers.light[keep], blockers.blocker[keep], blockers.umbra | hidden)
 
 

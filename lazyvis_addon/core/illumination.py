@@ -18,8 +18,8 @@ from . import rng
 from .blocker_map import BlockerMap, first_blocker
 from .blockers import BlockerPolygons, silhouette_planes
 from .bsdf import SurfaceBsdf
-from .geometry import (PLANE_EPS, LightFrames, ReceiverLight, blocker_in_front_of_light, cone_planes, split_convex,
-                       plane_lines, polygon_area_2d, projected_solid_angle, receiver_light, trim)
+from .geometry import (PLANE_EPS, LightFrames, ReceiverLight, blocker_in_front_of_light, clip_convex, cone_planes,
+                       plane_lines, polygon_area_2d, projected_solid_angle, receiver_light, split_convex, trim)
 from .ggx import ROUGHNESS_SQ_THRESHOLD, alpha_from_roughness, ggx_reflection_pdf, sample_ggx_reflection
 from .ltc import ltc_shape_integral
 from .phong import phong_exponent_from_roughness, phong_polygon_integral
@@ -44,6 +44,9 @@ class VisiblePieces:
     count : (M,) int64
     couple : (M,) int64          couple of each piece.
     max_rounds : int             most blockers any couple had.
+    sign : (M,) float64 or None  None: the pieces are disjoint. Otherwise they are signed terms whose
+                                 weighted sum is the visible region (``visible_pieces(signed=True)``):
+                                 only integrals linear in the region may be taken over them.
     """
 
     couples: ReceiverLight
@@ -52,6 +55,7 @@ class VisiblePieces:
     count: np.ndarray
     couple: np.ndarray
     max_rounds: int = 0
+    sign: np.ndarray | None = None
 
 
 def couples_for(surface: SurfacePoints, frames: LightFrames, exclude: np.ndarray | None = None
@@ -74,7 +78,7 @@ def couples_for(surface: SurfacePoints, frames: LightFrames, exclude: np.ndarray
 
 
 def visible_pieces(surface: SurfacePoints, frames: LightFrames, polygons: BlockerPolygons, blockers: BlockerMap,
-                   lights: np.ndarray | None = None) -> VisiblePieces:
+                   lights: np.ndarray | None = None, signed: bool = False) -> VisiblePieces:
     """Cut every lit couple's light by its blockers.
 
     Parameters
@@ -82,6 +86,8 @@ def visible_pieces(surface: SurfacePoints, frames: LightFrames, polygons: Blocke
     surface : the batch's SurfacePoints (N of them).
     blockers : BlockerMap whose ``pixel`` is batch-local and whose ``umbra`` is (N, L).
     lights : (L,) bool or None    only couples with these lights (default: all).
+    signed : bool                 return signed terms instead of disjoint pieces (see ``_signed_terms``):
+                                  cheaper, for integrals linear in the region (Lambert's formula).
     """
     exclude = blockers.umbra
     if lights is not None:
@@ -108,6 +114,9 @@ def visible_pieces(surface: SurfacePoints, frames: LightFrames, polygons: Blocke
 
     rounds = int(rank.max()) + 1
     blockers_of_couple = np.bincount(entry_couple, minlength=len(couple_pixel))
+    if signed:
+        return _signed_terms(couples, couple_pixel, entry_couple, rank, lines, line_valid, min_area,
+                             blockers_of_couple, rounds)
     finished = []
     for k in range(rounds):  # rounds: the k-th blocker of every couple at once
         # Pieces of couples with no k-th blocker are final: set them aside so rounds stop copying them.
@@ -125,6 +134,58 @@ def visible_pieces(surface: SurfacePoints, frames: LightFrames, polygons: Blocke
             (pieces_uv[~drop], pieces_count[~drop], pieces_couple[~drop]), (new_uv, new_count, new_couple))
     pieces_uv, pieces_count, pieces_couple = _concat_pieces(*finished, (pieces_uv, pieces_count, pieces_couple))
     return VisiblePieces(couples, couple_pixel, pieces_uv, pieces_count, pieces_couple, rounds)
+
+
+def _signed_terms(couples, couple_pixel, entry_couple, rank, lines, line_valid, min_area, blockers_of_couple,
+                  rounds) -> VisiblePieces:
+    """The visible region by inclusion–exclusion: L minus the union of cones C_1..C_n is the signed sum of
+    L ∩ C_S over subsets S, with sign (-1)^|S|. Intersections of convex sets are convex, so each term is
+    one clip (inside parts only, no pieces to split off). Round k intersects every term so far with cone k;
+    an empty intersection ends that branch, and a term inside cone k cancels with its intersection, so
+    both go. Boxes seen side by side, whose cones meet only along edges, cost one clip each.
+    """
+    n_couples = len(couple_pixel)
+    uv, count, couple = couples.uv.copy(), couples.count.copy(), np.arange(n_couples)
+    sign = np.ones(n_couples)
+    finished = []
+    for k in range(rounds):  # rounds: the k-th cone of every couple at once
+        done = blockers_of_couple[couple] <= k
+        if done.any():
+            finished.append((uv[done], count[done], couple[done], sign[done]))
+            uv, count, couple, sign = uv[~done], count[~done], couple[~done], sign[~done]
+        this = np.flatnonzero(rank == k)
+        entry_of_couple = np.full(n_couples, -1, np.int64)
+        entry_of_couple[entry_couple[this]] = this
+        entry = entry_of_couple[couple]
+        edge_lines, edge_valid = lines[entry], line_valid[entry]
+        real_vertex = (np.arange(uv.shape[1])[None, :] < count[:, None])[:, None, :]
+        value = np.stack([_side(edge_lines[:, i], uv) for i in range(edge_lines.shape[1])], axis=1)  # (M, E, K)
+        outside_edge = edge_valid & np.where(real_vertex, value <= 0.0, True).all(axis=2)
+        inside_edge = ~edge_valid | np.where(real_vertex, value >= 0.0, True).all(axis=2)
+        separated = outside_edge.any(axis=1) | ~edge_valid.any(axis=1) | (count < 3)
+        covered = ~separated & inside_edge.all(axis=1)
+        straddle = np.flatnonzero(~separated & ~covered)
+        part_uv, part_count = uv[straddle], count[straddle]
+        for i in range(edge_lines.shape[1]):  # cone faces: a handful
+            side = _side(edge_lines[straddle, i], part_uv)
+            real = np.arange(part_uv.shape[1])[None, :] < part_count[:, None]
+            cut = np.flatnonzero(edge_valid[straddle, i] & (part_count >= 3)
+                                 & np.where(real, side < 0.0, False).any(axis=1))
+            if len(cut):
+                clipped, part_count[cut] = clip_convex(part_uv[cut], part_count[cut], side[cut])
+                part_uv = _pad_to(part_uv, clipped.shape[1])
+                part_uv[cut] = _pad_to(clipped, part_uv.shape[1])
+        owner = couple[straddle]
+        big = (part_count >= 3) & (np.abs(polygon_area_2d(part_uv)) > min_area[owner])
+        uv, count, couple, sign = _concat_terms((uv[~covered], count[~covered], couple[~covered], sign[~covered]),
+                                                (part_uv[big], part_count[big], owner[big], -sign[straddle][big]))
+    uv, count, couple, sign = _concat_terms(*finished, (uv, count, couple, sign))
+    return VisiblePieces(couples, couple_pixel, uv, count, couple, rounds, sign)
+
+
+def _concat_terms(*parts):
+    uv, count, couple = _concat_pieces(*[p[:3] for p in parts])
+    return uv, count, couple, np.concatenate([p[3] for p in parts])
 
 
 def _cone_lines(surface, frames, polygons, couples, couple_pixel, entry_couple, entry_blocker):
@@ -303,7 +364,11 @@ def analytic(pieces: VisiblePieces, surface: SurfacePoints, frames: LightFrames)
                              np.einsum("nk,nk->n", normal, frames.bitangent[light]),
                              np.einsum("nk,nk->n", normal, frames.normal[light])], axis=1)
     per_piece = projected_solid_angle(directions, normal_local[pieces.couple])
-    return np.bincount(pieces.couple, weights=per_piece, minlength=len(pieces.couple_pixel))
+    if pieces.sign is None:
+        return np.bincount(pieces.couple, weights=per_piece, minlength=len(pieces.couple_pixel))
+    # Signed terms: rounding can leave a fully hidden light a hair below zero.
+    return np.maximum(np.bincount(pieces.couple, weights=per_piece * pieces.sign,
+                                  minlength=len(pieces.couple_pixel)), 0.0)
 
 
 def sample_visible(pieces: VisiblePieces, frames: LightFrames, samples: int, couples_wanted: np.ndarray,

@@ -255,7 +255,10 @@ def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: Bloc
                 weights, couples, couple_pixel, _ = standard_mc(part, frames, tracer, bsdf, settings, globals_,
                                                                 lights)
             else:
-                pieces = visible_pieces(part, frames, polygons, local, lights)
+                # Lambert's formula alone (no glossy lobe, no sampling, no verification) takes the cheaper
+                # signed terms; the reference integrator keeps disjoint pieces as the independent check.
+                signed = settings.integrator == "analytic" and not verify and not bsdf.glossy.any()
+                pieces = visible_pieces(part, frames, polygons, local, lights, signed)
                 couples, couple_pixel = pieces.couples, pieces.couple_pixel
                 weights = couple_weights(pieces, part, frames, bsdf, settings, globals_)
                 n_pieces += len(pieces.count)
