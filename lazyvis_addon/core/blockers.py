@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .geometry import cross3
+
 # Two triangles are coplanar when their unit normals agree to this and the far vertex lies on the plane
 # within this fraction of the quad's size.
 COPLANAR_EPS = 1e-9
@@ -368,14 +370,18 @@ def silhouette_planes(parts: ConvexParts, part: np.ndarray, receiver: np.ndarray
     usable = front.any(axis=1) & (has_face & ~front).any(axis=1) & (n_silhouette >= 3) \
         & (n_silhouette <= SILHOUETTE_MAX_EDGES)
     width = int(min(max(n_silhouette.max() if len(part) else 3, 3), SILHOUETTE_MAX_EDGES))
-    chosen = np.argsort(~silhouette, axis=1, kind="stable")[:, :width]
-    valid = np.take_along_axis(silhouette, chosen, axis=1) & usable[:, None]
-    a = np.take_along_axis(parts.edge_start[part, :n_edges], chosen[..., None], axis=1) - receiver[:, None]
-    b = np.take_along_axis(parts.edge_end[part, :n_edges], chosen[..., None], axis=1) - receiver[:, None]
-    planes = np.cross(a, b)
+    # Compact each row's silhouette edges into its first slots.
+    slot = np.cumsum(silhouette, axis=1) - 1
+    row, column = np.nonzero(silhouette & (slot < width))
+    chosen = np.zeros((len(part), width), np.int64)
+    chosen[row, slot[row, column]] = column
+    valid = (np.arange(width)[None, :] < n_silhouette[:, None]) & usable[:, None]
+    a = parts.edge_start[part[:, None], chosen] - receiver[:, None]
+    b = parts.edge_end[part[:, None], chosen] - receiver[:, None]
+    planes = cross3(a, b)
     # Inside is towards the part: its centroid lies strictly inside every silhouette plane.
     towards = np.einsum("nsk,nk->ns", planes, parts.centroid[part] - receiver)
-    norm = np.linalg.norm(planes, axis=2)
-    planes = planes * (np.where(towards > 0, 1.0, -1.0) / np.maximum(norm, 1e-300))[:, :, None]
-    valid &= norm > 1e-14 * np.linalg.norm(a, axis=2) * np.linalg.norm(b, axis=2)
+    norm = np.sqrt(np.einsum("nsk,nsk->ns", planes, planes))
+    planes *= (np.where(towards > 0, 1.0, -1.0) / np.maximum(norm, 1e-300))[:, :, None]
+    valid &= norm ** 2 > 1e-28 * np.einsum("nsk,nsk->ns", a, a) * np.einsum("nsk,nsk->ns", b, b)
     return planes, valid, usable
