@@ -47,8 +47,8 @@ class LazyVisSceneSettings(bpy.types.PropertyGroup):
                                          "stratified over the light")
     aa_samples: IntProperty(name="Edge Samples", default=_DEFAULTS.aa_samples, min=1, soft_max=256,
                             description="Anti-aliasing: samples for pixels at edges (another object, material "
-                                        "or a sharp shadow nearby), placed by the pixel filter; 1 shades "
-                                        "pixel centres only")
+                                        "or a sharp shadow nearby) on average, more at stronger edges, placed "
+                                        "by the pixel filter; 1 shades pixel centres only")
     aa_threshold: FloatProperty(name="Edge Threshold", default=_DEFAULTS.aa_threshold, min=0.0, soft_max=1.0,
                                 description="Relative brightness step between neighbouring pixels that "
                                             "marks an edge for anti-aliasing")

@@ -81,7 +81,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--verify-rays", type=int, default=defaults.verify_rays,
                         help="verification rays per pixel and light (0: off)")
     parser.add_argument("--edge-samples", type=int, default=defaults.aa_samples,
-                        help="anti-aliasing samples in edge pixels (1: pixel centres only)")
+                        help="anti-aliasing samples per edge pixel on average, more at stronger edges "
+                             "(1: pixel centres only)")
     parser.add_argument("--filter-width", type=float, default=defaults.filter_width,
                         help="pixel filter width in pixels, as Cycles' Film > Pixel Filter > Width")
     parser.add_argument("--filter-type", choices=FILTER_TYPES, default=defaults.filter_type)

@@ -12,8 +12,8 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from .antialias import (cull_to_samples, foreign_samples, inherit_blockers, landing_pixels, pool_samples,
-                        refine_pixels, sample_rgba, subpixel_samples)
+from .antialias import (allocate_samples, cull_to_samples, edge_contrast, foreign_samples, inherit_blockers,
+                        landing_pixels, pool_samples, refine_pixels, sample_rgba, subpixel_samples)
 from .blockers import BlockerPolygons
 from .blocker_map import BlockerMap, build_blocker_map, flood_fill, reference_blocker_map
 from .camera import camera_rays, planar_depth, window_pixels
@@ -43,8 +43,8 @@ class RenderOutput:
     umbra : (H, W, L) bool           the light is hidden at this pixel (umbra detection).
     depth : (H, W) float32           planar camera depth, BACKGROUND_DEPTH where nothing is hit.
     normal : (H, W, 3) float32       world-space shading normal facing the camera (0 on background).
-    sample_count : (H, W) int32      camera samples drawn for the pixel: ``aa_samples`` where anti-aliased,
-                                     1 where the centre was shaded alone.
+    sample_count : (H, W) int32      camera samples drawn for the pixel where anti-aliased (``aa_samples`` on
+                                     average, more at stronger edges), 1 where the centre was shaded alone.
     warnings : list[str]
     stats : dict                     stage seconds, rays, pairs, peak memory.
     """
@@ -152,10 +152,10 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
         if len(pixels):
             shading = (scene, tracer, extent, settings, pixel_global, frames, polygons, progress, stats,
                        (outer_map, outer, outer_surface) if lazy else None, verify)
-            samples = settings.aa_samples
-            rgba, position = _shade_samples(pixels, samples, *shading)
-            owner = np.repeat(np.arange(len(pixels)), samples)
-            counts = np.full(len(pixels), samples)
+            seen = radiance + surface.emission
+            counts = allocate_samples(edge_contrast(seen, (height, width), pixels), settings.aa_samples)
+            rgba, position = _shade_samples(pixels, counts, *shading)
+            owner = np.repeat(np.arange(len(pixels)), counts)
             stats["aa_samples_shaded"] = int(counts.sum())
             resolved = (pixels, pool_samples(rgba, position, owner, pixels, counts, camera.window, settings), counts)
 
@@ -297,12 +297,12 @@ SAMPLE_VERIFY_ROUNDS = 3
 
 
 def _shade_verified(surface: SurfacePoints, frames, polygons, tracer, blockers: BlockerMap, settings: Settings,
-                    pixel_global: np.ndarray, progress: Progress, materials, check: np.ndarray, group_size: int
+                    pixel_global: np.ndarray, progress: Progress, materials, check: np.ndarray, counts: np.ndarray
                     ) -> tuple[np.ndarray, int]:
     """Pass 2 over anti-aliasing samples, which have no pixel grid to flood-fill over: verification rays
     at the samples in ``check`` (N,) bool; a pair found at a sample is added to the lists of its group
-    (the ``group_size`` consecutive samples of one pixel), which are shaded again, a few rounds. A pair
-    added where its blocker does not overlap the light clips nothing, so sharing is safe.
+    (the samples of one pixel: ``counts`` (P,) consecutive samples each), which are shaded again, a few
+    rounds. A pair added where its blocker does not overlap the light clips nothing, so sharing is safe.
 
     Returns (N, 3) radiance and the verification rays cast.
     """
@@ -321,14 +321,17 @@ def _shade_verified(surface: SurfacePoints, frames, polygons, tracer, blockers: 
                                                   pixel_global[chosen], progress, materials, True)
     missed = (chosen[missed[0]], missed[1], missed[2])
     rays = stats["verify_rays"]
-    siblings = np.arange(group_size)
+    group_start = np.cumsum(counts) - counts
+    group_of = np.repeat(np.arange(len(counts)), counts)
     for _ in range(SAMPLE_VERIFY_ROUNDS):  # rounds: a few
         if len(missed[0]) == 0:
             break
-        members = (missed[0] // group_size * group_size)[:, None] + siblings  # (M, group_size)
-        blockers = BlockerMap.from_entries(np.concatenate([blockers.pixel, members.ravel()]),
-                                           np.concatenate([blockers.light, np.repeat(missed[2], group_size)]),
-                                           np.concatenate([blockers.blocker, np.repeat(missed[1], group_size)]),
+        group = group_of[missed[0]]
+        size = counts[group]
+        members = np.repeat(group_start[group], size) + np.arange(size.sum()) - np.repeat(np.cumsum(size) - size, size)
+        blockers = BlockerMap.from_entries(np.concatenate([blockers.pixel, members]),
+                                           np.concatenate([blockers.light, np.repeat(missed[2], size)]),
+                                           np.concatenate([blockers.blocker, np.repeat(missed[1], size)]),
                                            blockers.umbra)
         changed = np.unique(members)
         part, stats, missed = _illuminate(surface.take(changed), frames, polygons, tracer,
@@ -340,15 +343,15 @@ def _shade_verified(surface: SurfacePoints, frames, polygons, tracer, blockers: 
     return radiance, rays
 
 
-def _shade_samples(pixels: np.ndarray, samples: int, scene: Scene, tracer, extent: float,
+def _shade_samples(pixels: np.ndarray, counts: np.ndarray, scene: Scene, tracer, extent: float,
                    settings: Settings, pixel_global: np.ndarray, frames, polygons, progress: Progress, stats: dict,
                    lazy_state, verify: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Shade ``samples`` anti-aliasing samples of each of ``pixels`` (P,).
+    """Shade ``counts`` (P,) anti-aliasing samples of each of ``pixels`` (P,).
 
     ``lazy_state`` is (outer_map, outer window, outer_surface) of the lazy integrators, None otherwise.
-    Returns (P * samples, 4) RGBA and (P * samples, 2) raster positions, pixel-major.
+    Returns (N, 4) RGBA and (N, 2) raster positions of the N = counts.sum() samples, pixel-major.
     """
-    sub, position, sub_global = subpixel_samples(scene, tracer, extent, pixels, settings, pixel_global, samples)
+    sub, position, sub_global = subpixel_samples(scene, tracer, extent, pixels, settings, pixel_global, counts)
     landing = landing_pixels(position)
     if lazy_state is not None:
         outer_map, outer, outer_surface = lazy_state
@@ -361,14 +364,14 @@ def _shade_samples(pixels: np.ndarray, samples: int, scene: Scene, tracer, exten
         check = sub.hit if verify else foreign_samples(sub, landing, outer_surface, outer)
         stats["aa_verified_samples"] = stats.get("aa_verified_samples", 0) + int(check.sum())
         sub_radiance, rays = _shade_verified(sub, frames, polygons, tracer, sub_map, settings, sub_global,
-                                             progress, scene.materials, check, samples)
+                                             progress, scene.materials, check, counts)
         stats["verify_rays"] += rays
     else:
         sub_map = None if settings.integrator == "standard_mc" else \
             reference_blocker_map(sub, frames, polygons, (len(sub), 1), settings, progress)
         sub_radiance, _, _ = _illuminate(sub, frames, polygons, tracer, sub_map, settings, sub_global,
                                          progress, scene.materials)
-    return sample_rgba(sub_radiance, sub, scene, settings, samples).reshape(-1, 4), position
+    return sample_rgba(sub_radiance, sub, scene, settings), position
 
 
 def _compose(scene: Scene, surface: SurfacePoints, radiance: np.ndarray, blockers: BlockerMap | None,
@@ -378,7 +381,7 @@ def _compose(scene: Scene, surface: SurfacePoints, radiance: np.ndarray, blocker
     height, width = shape
     n_pixels = height * width
     hit = surface.hit
-    combined = sample_rgba(radiance, surface, scene, settings, 1).reshape(-1, 4).astype(np.float32)
+    combined = sample_rgba(radiance, surface, scene, settings).astype(np.float32)
     sample_count = np.ones(n_pixels, np.int32)
     if resolved is not None:
         combined[resolved[0]] = resolved[1]

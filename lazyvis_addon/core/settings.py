@@ -50,8 +50,9 @@ class Settings:
         Flood-fill neighbourhood, 8 (the paper's text) or 4 (its Fig. 3 pseudo-code).
     aa_samples : int
         Anti-aliasing: samples for pixels at edges (another polygon, material or a radiance step in
-        their neighbourhood), placed by the pixel filter and pooled with the neighbouring edge pixels'
-        samples under its footprint; 1 shades pixel centres only.
+        their neighbourhood) on average: each gets from 2 up to 4 times that many, in proportion to its
+        radiance step (``antialias.allocate_samples``), placed by the pixel filter and pooled with the
+        neighbouring edge pixels' samples under its footprint; 1 shades pixel centres only.
     filter_width : float
         Pixel filter width in pixels, Cycles' Film > Pixel Filter > Width (``scene.cycles.filter_width``;
         1.5 default): the Blackman-Harris window's radius.
