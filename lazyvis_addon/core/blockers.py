@@ -161,6 +161,8 @@ PART_MAX_FACES = 32
 SILHOUETTE_MAX_EDGES = 8
 # A vertex lies behind a face's plane (convexity) within this fraction of the part's size.
 CONVEX_EPS = 1e-9
+# Face-vertex heights per convexity check batch (8 bytes each).
+PART_CHECK_VALUES = 1 << 22
 
 
 @dataclass
@@ -274,13 +276,17 @@ class ConvexParts:
                                             minlength=n_parts) / np.maximum(per_part, 1)
         size = np.abs(padded - centroid[:, None]).max(axis=(1, 2))
         # Convex: every vertex on or behind every face's plane, and faces of positive area.
-        height = np.einsum("cfk,cvk->cfv", normal, padded) - offset[:, :, None]
         real_face = np.zeros((n_parts, n_faces), bool)
         real_face[face_part[faces], face_slot] = length > 0
         has_face = np.zeros((n_parts, n_faces), bool)
         has_face[face_part[faces], face_slot] = True
-        convex = (np.where(has_face[:, :, None], height, 0.0) <= CONVEX_EPS * np.maximum(size, 1e-300)[:, None, None]
-                  ).all(axis=(1, 2)) & (real_face | ~has_face).all(axis=1)
+        convex = (real_face | ~has_face).all(axis=1)
+        chunk = max(1, PART_CHECK_VALUES // (n_faces * n_vertices))  # parts per (C, F, V) array
+        for first in range(0, n_parts, chunk):  # chunks of parts: bounded temporaries
+            rows = slice(first, first + chunk)
+            height = np.einsum("cfk,cvk->cfv", normal[rows], padded[rows]) - offset[rows, :, None]
+            tolerance = CONVEX_EPS * np.maximum(size[rows], 1e-300)[:, None, None]
+            convex[rows] &= (np.where(has_face[rows, :, None], height, 0.0) <= tolerance).all(axis=(1, 2))
         # Edges: the two directed copies of each undirected edge of a candidate part.
         first_copy = order[new_run & good_run[run]]
         second_copy = order[np.concatenate([new_run[1:], [True]]) & good_run[run]]
