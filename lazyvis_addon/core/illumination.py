@@ -158,12 +158,7 @@ def _signed_terms(couples, couple_pixel, entry_couple, rank, lines, line_valid, 
         entry_of_couple[entry_couple[this]] = this
         entry = entry_of_couple[couple]
         edge_lines, edge_valid = lines[entry], line_valid[entry]
-        real_vertex = (np.arange(uv.shape[1])[None, :] < count[:, None])[:, None, :]
-        value = np.stack([_side(edge_lines[:, i], uv) for i in range(edge_lines.shape[1])], axis=1)  # (M, E, K)
-        outside_edge = edge_valid & np.where(real_vertex, value <= 0.0, True).all(axis=2)
-        inside_edge = ~edge_valid | np.where(real_vertex, value >= 0.0, True).all(axis=2)
-        separated = outside_edge.any(axis=1) | ~edge_valid.any(axis=1) | (count < 3)
-        covered = ~separated & inside_edge.all(axis=1)
+        separated, covered = _classify(uv, count, edge_lines, edge_valid)
         straddle = np.flatnonzero(~separated & ~covered)
         part_uv, part_count = uv[straddle], count[straddle]
         for i in range(edge_lines.shape[1]):  # cone faces: a handful
@@ -259,6 +254,19 @@ def _side(lines: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return lines[:, 0, None] * uv[..., 0] + lines[:, 1, None] * uv[..., 1] + lines[:, 2, None]
 
 
+def _classify(uv, count, lines, valid):
+    """Where each piece (M, K, 2) lies against its cone's lines (M, E, 3): wholly outside one of them
+    (``separated``, (M,) bool) or inside all (``covered``)."""
+    real_vertex = (np.arange(uv.shape[1])[None, :] < count[:, None])[:, None, :]
+    value = np.stack([_side(lines[:, i], uv) for i in range(lines.shape[1])], axis=1)  # (M, E, K)
+    outside_edge = valid & np.where(real_vertex, value <= 0.0, True).all(axis=2)
+    inside_edge = ~valid | np.where(real_vertex, value >= 0.0, True).all(axis=2)
+    # A blocker without a valid cone face subtends no solid angle (the receiver lies in its plane): it
+    # removes nothing, rather than everything.
+    separated = outside_edge.any(axis=1) | ~valid.any(axis=1)
+    return separated, ~separated & inside_edge.all(axis=1)
+
+
 def _subtract_blocker(uv, count, couple, lines, valid, min_area):
     """Remove one blocker's cone from each piece.
 
@@ -273,15 +281,7 @@ def _subtract_blocker(uv, count, couple, lines, valid, min_area):
     new_uv, new_count, new_couple : pieces replacing the ones marked in ``drop``.
     drop : (M,) bool                              pieces that the blocker touched (replaced or removed).
     """
-    n_edges = lines.shape[1]
-    real_vertex = np.arange(uv.shape[1])[None, :] < count[:, None]
-    value = np.stack([_side(lines[:, i], uv) for i in range(n_edges)], axis=1)  # (M, E, K)
-    outside_edge = valid & np.where(real_vertex[:, None, :], value <= 0.0, True).all(axis=2)
-    inside_edge = ~valid | np.where(real_vertex[:, None, :], value >= 0.0, True).all(axis=2)
-    # A blocker without a valid cone face subtends no solid angle (the receiver lies in its plane): it
-    # removes nothing, rather than everything.
-    separated = outside_edge.any(axis=1) | ~valid.any(axis=1)
-    covered = ~separated & inside_edge.all(axis=1)
+    separated, covered = _classify(uv, count, lines, valid)
     split = np.flatnonzero(~separated & ~covered)
     drop = ~separated
 
