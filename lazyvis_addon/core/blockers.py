@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .geometry import cross3
+from .geometry import cross3, newell_normal
 
 # Two triangles are coplanar when their unit normals agree to this and the far vertex lies on the plane
 # within this fraction of the quad's size.
@@ -236,8 +236,7 @@ class ConvexParts:
         faces_per_label = np.bincount(face_label, minlength=n_ids)
         candidate = (faces_per_label >= 2) & (faces_per_label <= max_faces)
         candidate[open_label] = False
-        is_candidate_face = candidate[face_label]
-        if not is_candidate_face.any():
+        if not candidate[face_label].any():
             return empty
         # Renumber candidate parts 0 .. C-1 and pad their faces, vertices and edges.
         part_of_label = np.full(n_ids, -1, np.int64)
@@ -248,10 +247,7 @@ class ConvexParts:
         face_slot = _rank_within(face_part[faces])
         n_faces = int(face_slot.max()) + 1
         first_corner = vertices[faces, 0]
-        newell = np.zeros((len(faces), 3))
-        for k in range(width):  # polygon corners: 3 or 4
-            nxt = np.where(k + 1 < count[faces], k + 1, 0)
-            newell += np.cross(vertices[faces, k], vertices[faces, nxt]) * (k < count[faces])[:, None]
+        newell = newell_normal(vertices[faces])
         length = np.linalg.norm(newell, axis=1)
         unit = newell / np.maximum(length, 1e-300)[:, None]
         normal = np.zeros((n_parts, n_faces, 3))
@@ -264,16 +260,14 @@ class ConvexParts:
         part_vertices = np.flatnonzero(vertex_part >= 0)
         vertex_slot = _rank_within(vertex_part[part_vertices])
         n_vertices = int(vertex_slot.max()) + 1
-        padded = np.zeros((n_parts, n_vertices, 3))
-        first_vertex = np.zeros((n_parts, 3))
-        first_vertex[vertex_part[part_vertices][vertex_slot == 0]] = positions[part_vertices][vertex_slot == 0]
-        padded[:] = first_vertex[:, None]
-        padded[vertex_part[part_vertices], vertex_slot] = positions[part_vertices]
         per_part = np.bincount(vertex_part[part_vertices], minlength=n_parts)
         centroid = np.zeros((n_parts, 3))
         for axis in range(3):  # coordinates
             centroid[:, axis] = np.bincount(vertex_part[part_vertices], weights=positions[part_vertices, axis],
                                             minlength=n_parts) / np.maximum(per_part, 1)
+        # Padded with the centroid: inside the part, so it passes every test a real vertex must.
+        padded = np.repeat(centroid[:, None], n_vertices, axis=1)
+        padded[vertex_part[part_vertices], vertex_slot] = positions[part_vertices]
         size = np.abs(padded - centroid[:, None]).max(axis=(1, 2))
         # Convex: every vertex on or behind every face's plane, and faces of positive area.
         real_face = np.zeros((n_parts, n_faces), bool)
@@ -331,9 +325,9 @@ def _components(start: np.ndarray, end: np.ndarray, n_vertices: int, max_rounds:
     label = np.arange(n_vertices)
     for _ in range(max_rounds):  # label propagation with pointer jumping: a few dozen rounds at most
         smaller = np.minimum(label[start], label[end])
-        np.minimum.at(label, start, smaller)
-        np.minimum.at(label, end, smaller)
-        np.minimum.at(label, label.copy(), label.copy())
+        # Hook both ends and the vertices they point to (a whole tree follows its root at once).
+        for joined in (start, end, label[start], label[end]):  # four index arrays
+            np.minimum.at(label, joined, smaller)
         label = label[label]
         if (label[start] == label[end]).all() and (label[label] == label).all():
             return label

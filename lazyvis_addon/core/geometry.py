@@ -57,10 +57,7 @@ class LightFrames:
 def light_frames(lights: Lights) -> LightFrames:
     """Frames of validated lights (see ``Scene.validated``)."""
     vertices = np.asarray(lights.vertices, dtype=np.float64)
-    count = len(vertices)
-    newell = np.zeros((count, 3))
-    for k in range(vertices.shape[1]):  # polygon vertices: a handful
-        newell += np.cross(vertices[:, k], vertices[:, (k + 1) % vertices.shape[1]])
+    newell = newell_normal(vertices)
     area = 0.5 * np.linalg.norm(newell, axis=1)
     normal = newell / np.maximum(2.0 * area, 1e-300)[:, None]
     origin = vertices[:, 0]
@@ -72,6 +69,12 @@ def light_frames(lights: Lights) -> LightFrames:
     uv = np.stack([np.einsum("lvk,lk->lv", rel, tangent), np.einsum("lvk,lk->lv", rel, bitangent)], axis=-1)
     return LightFrames(origin, tangent, bitangent, normal, uv, vertices, np.asarray(lights.vertex_count),
                        np.asarray(lights.radiance, dtype=np.float64), np.asarray(lights.two_sided, bool), area)
+
+
+def newell_normal(polygons: np.ndarray) -> np.ndarray:
+    """Newell's normal of padded polygons (N, K, 3) -> (N, 3): twice the area along the unit normal.
+    Padding that repeats the last vertex adds nothing (its edges have zero length)."""
+    return cross3(polygons, np.roll(polygons, -1, axis=1)).sum(axis=1)
 
 
 def light_groups(frames: LightFrames) -> list[np.ndarray]:
