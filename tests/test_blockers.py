@@ -121,3 +121,19 @@ def test_silhouette_cone_is_the_set_of_directions_that_hit_the_box():
         assert (inside == hits).mean() > 0.999  # directions grazing an edge may go either way
         assert inside.any() and (~inside).any()
 
+
+
+def test_triangle_components_join_triangles_through_shared_vertices():
+    """Two boxes apart are two components, a quad's two triangles one; boxes sharing one corner join;
+    triangles are joined by vertex positions, not by their order in the soup."""
+    from lazyvis_addon.core.blockers import triangle_components
+    apart = np.concatenate([box_triangles((0, 0, 0), (1, 1, 1)), box_triangles((5, 0, 0), (1, 1, 1))])
+    label = triangle_components(apart)
+    assert len(np.unique(label[:12])) == 1 and len(np.unique(label[12:])) == 1 and label[0] != label[12]
+    order = np.random.default_rng(0).permutation(len(apart))
+    shuffled = triangle_components(apart[order])
+    assert len(np.unique(shuffled)) == 2
+    np.testing.assert_array_equal(shuffled[:, None] == shuffled[None, :], label[order][:, None] == label[order][None, :])
+    touching = np.concatenate([box_triangles((0, 0, 0), (1, 1, 1)), box_triangles((1, 1, 1), (1, 1, 1))])
+    assert len(np.unique(triangle_components(touching))) == 1  # the corner (0.5, 0.5, 0.5) is shared
+    assert len(triangle_components(np.zeros((0, 3, 3)))) == 0

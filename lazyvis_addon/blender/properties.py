@@ -48,7 +48,13 @@ class LazyVisSceneSettings(bpy.types.PropertyGroup):
     aa_samples: IntProperty(name="Edge Samples", default=_DEFAULTS.aa_samples, min=1, soft_max=256,
                             description="Anti-aliasing: samples for pixels at edges (another object, material "
                                         "or a sharp shadow nearby) on average, more at stronger edges, placed "
-                                        "by the pixel filter; 1 shades pixel centres only")
+                                        "by the pixel filter (with Coverage Rays the pixel's centre counts as "
+                                        "one); 1 shades pixel centres only")
+    aa_coverage_rays: IntProperty(name="Coverage Rays", default=_DEFAULTS.aa_coverage_rays, min=0, soft_max=64,
+                                  description="Camera rays per edge pixel that only see which object and "
+                                              "material the pixel covers, and how much of it: the jump at an "
+                                              "object's outline comes from them, so few shaded samples are "
+                                              "needed (0: off, the plain mean of the samples)")
     aa_threshold: FloatProperty(name="Edge Threshold", default=_DEFAULTS.aa_threshold, min=0.0, soft_max=1.0,
                                 description="Relative brightness step between neighbouring pixels that "
                                             "marks an edge for anti-aliasing")
@@ -100,8 +106,9 @@ class LazyVisViewLayerSettings(bpy.types.PropertyGroup):
                                          description="Blocker-light pairs found per pixel by pass 1",
                                          update=lambda self, context: context.view_layer.update_render_passes())
     use_pass_sample_count: BoolProperty(name="Sample Count", default=False,
-                                        description="Camera samples averaged per pixel: Edge Samples where "
-                                                    "anti-aliased, 1 where the centre was shaded alone",
+                                        description="Shaded camera samples per pixel: Edge Samples on "
+                                                    "average where anti-aliased (the centre included), 1 "
+                                                    "where the centre was shaded alone",
                                         update=lambda self, context: context.view_layer.update_render_passes())
 
 

@@ -74,6 +74,7 @@ class LAZYVIS_RENDER_PT_integrator(LazyVisPanel, bpy.types.Panel):
         col.prop(props, "aa_samples")
         sub = col.column(align=True)
         sub.active = props.aa_samples > 1
+        sub.prop(props, "aa_coverage_rays")
         sub.prop(props, "aa_threshold")
         layout.prop(props, "seed")
 

@@ -83,6 +83,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--edge-samples", type=int, default=defaults.aa_samples,
                         help="anti-aliasing samples per edge pixel on average, more at stronger edges "
                              "(1: pixel centres only)")
+    parser.add_argument("--coverage-rays", type=int, default=defaults.aa_coverage_rays,
+                        help="camera rays per edge pixel that only find the surface they see (0: off)")
     parser.add_argument("--filter-width", type=float, default=defaults.filter_width,
                         help="pixel filter width in pixels, as Cycles' Film > Pixel Filter > Width")
     parser.add_argument("--filter-type", choices=FILTER_TYPES, default=defaults.filter_type)
@@ -111,7 +113,8 @@ def main(argv=None) -> int:
                                   tuple(args.window))
         settings = Settings(integrator=args.integrator, glossy_integrator=args.glossy_integrator,
                             shadow_rays=args.shadow_rays, verify_rays=args.verify_rays, mc_samples=args.samples,
-                            aa_samples=args.edge_samples, filter_width=args.filter_width,
+                            aa_samples=args.edge_samples, aa_coverage_rays=args.coverage_rays,
+                            filter_width=args.filter_width,
                             filter_type=args.filter_type,
                             connectivity=args.connectivity, umbra_detection=not args.no_umbra, seed=args.seed,
                             memory_budget_mb=args.memory_mb)

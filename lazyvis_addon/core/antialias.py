@@ -23,11 +23,14 @@ samples with shadow rays (render._shade_verified).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from . import rng
 from .adaptive import close_holes, refine_mask
 from .blocker_map import BlockerMap, test_pairs
+from .blockers import triangle_components
 from .camera import camera_rays, window_pixels
 from .film import filter_offsets, offset_density
 from .parallel import thread_count
@@ -164,6 +167,33 @@ def _with_outside_ring(scene: Scene, grids, tracer, settings: Settings):
             np.pad(seen, [(1, 1), (1, 1), (0, 0)], mode="edge"))
 
 
+def filter_rays(camera, pixels: np.ndarray, counts, first, settings: Settings, pixel_global: np.ndarray):
+    """Camera rays of points ``first .. first + counts - 1`` of each pixel's filter sequence.
+
+    Parameters
+    ----------
+    pixels : (P,) int64            window-local pixels.
+    counts, first : int or (P,)    points per pixel and the index of each pixel's first point.
+
+    Returns
+    -------
+    origins, directions : (N, 3) float64; position : (N, 2) float64 full-frame raster position (pixels, x
+    right, y down; pixel (x, y) spans [x, x + 1) x [y, y + 1)); parent : (N,) int64 window-local pixel;
+    sample : (N,) int64 index in its pixel's sequence. Pixel-major, N = sum of the counts.
+    """
+    counts = np.broadcast_to(np.asarray(counts, dtype=np.int64), (len(pixels),))
+    first = np.broadcast_to(np.asarray(first, dtype=np.int64), (len(pixels),))
+    xs, ys = window_pixels(camera)
+    parent = np.repeat(pixels, counts)
+    sample = np.repeat(first, counts) + np.arange(len(parent)) - np.repeat(np.cumsum(counts) - counts, counts)
+    # Sobol points: strata of every shape at any power-of-two count, and a later batch continues them.
+    u = rng.sobol_2d(settings.seed, settings.frame, rng.STREAM_FILM, pixel_global[parent], sample)
+    offset = filter_offsets(u, settings.effective_filter_width, settings.filter_type)
+    origins, directions = camera_rays(camera, xs[parent], ys[parent], offset)
+    position = np.stack([xs[parent], ys[parent]], axis=1) + offset
+    return origins, directions, position, parent, sample
+
+
 def subpixel_samples(scene: Scene, tracer, extent: float, pixels: np.ndarray, settings: Settings,
                      pixel_global: np.ndarray, samples=None, first: int = 0):
     """Camera samples of the chosen pixels placed by the pixel filter.
@@ -178,25 +208,84 @@ def subpixel_samples(scene: Scene, tracer, extent: float, pixels: np.ndarray, se
     Returns
     -------
     surface : SurfacePoints of the samples (pixel-major, N = sum of the counts); position : (N, 2) float64
-    full-frame raster position (pixels, x right, y down; pixel (x, y) spans [x, x + 1) x [y, y + 1)) of each
-    sample; sample_global : (N,) int64 random-number identities.
+    full-frame raster position of each sample (see ``filter_rays``); sample_global : (N,) int64
+    random-number identities.
     """
     camera = scene.camera
     samples = settings.aa_samples if samples is None else samples
-    counts = np.broadcast_to(np.asarray(samples, dtype=np.int64), (len(pixels),))
-    xs, ys = window_pixels(camera)
-    parent = np.repeat(pixels, counts)
-    sample = first + np.arange(len(parent)) - np.repeat(np.cumsum(counts) - counts, counts)
-    # Sobol points: strata of every shape at any power-of-two count, and a later batch continues them.
-    u = rng.sobol_2d(settings.seed, settings.frame, rng.STREAM_FILM, pixel_global[parent], sample)
-    offset = filter_offsets(u, settings.effective_filter_width, settings.filter_type)
-    origins, directions = camera_rays(camera, xs[parent], ys[parent], offset)
+    origins, directions, position, parent, sample = filter_rays(camera, pixels, samples, first, settings,
+                                                                pixel_global)
     hits = tracer.intersect(origins, directions, None)
     surface = shade_hits(scene, origins, directions, hits.index_triangle, hits.u, hits.v, extent)
-    position = np.stack([xs[parent], ys[parent]], axis=1) + offset
     # Distinct from every real pixel's identity, and distinct per sample: samples do not share noise.
     sample_global = (1 + sample) * (camera.width * camera.height) + pixel_global[parent]
     return surface, position, sample_global
+
+
+def surface_strata(scene: Scene) -> np.ndarray:
+    """(T,) int64 surface of each triangle, for coverage: connected meshes (``triangle_components``) told
+    apart by material, numbered from 0. Radiance jumps where one surface meets another (a post before the
+    ground, a painted stripe) and varies smoothly within one, up to shadow edges and creases."""
+    if len(scene.triangles) == 0:
+        return np.zeros(0, np.int64)
+    component = triangle_components(scene.triangles)
+    material = scene.material_index if len(scene.material_index) else np.zeros(len(component), np.int64)
+    _, stratum = np.unique(component * (int(material.max()) + 1) + material, return_inverse=True)
+    return stratum.reshape(-1).astype(np.int64)
+
+
+def stratum_of(triangle: np.ndarray, strata: np.ndarray) -> np.ndarray:
+    """(N,) int64 surface of the triangles (N,) seen (``surface_strata``), -1 where nothing is seen."""
+    triangle = np.asarray(triangle, dtype=np.int64)
+    if len(strata) == 0:
+        return np.full(len(triangle), -1, np.int64)
+    return np.where(triangle >= 0, strata[np.maximum(triangle, 0)], -1)
+
+
+@dataclass
+class Coverage:
+    """Which surfaces each supersampled pixel's filter covers, and how much, from its coverage rays.
+
+    Attributes
+    ----------
+    pixel : (C,) int64       index into the supersampled pixels; sorted by (pixel, stratum).
+    stratum : (C,) int64     surface (``surface_strata``), -1 for the background.
+    fraction : (C,) float64  share of the pixel's coverage rays that see it (1 in sum per pixel).
+    stride : int             ``key = pixel * stride + stratum + 1`` orders the entries.
+    """
+
+    pixel: np.ndarray
+    stratum: np.ndarray
+    fraction: np.ndarray
+    stride: int
+
+    @property
+    def key(self) -> np.ndarray:
+        return self.pixel * self.stride + self.stratum + 1
+
+
+def pixel_coverage(scene: Scene, tracer, pixels: np.ndarray, counts: np.ndarray, sample_stratum: np.ndarray,
+                   strata: np.ndarray, settings: Settings, pixel_global: np.ndarray) -> Coverage:
+    """Coverage of each supersampled pixel from ``max(aa_coverage_rays, counts)`` points of its filter
+    sequence: its shaded samples are the first ``counts`` of them (``sample_stratum`` (N,) int64 says what
+    they hit), the rest are camera rays that only find the triangle they hit.
+
+    Parameters
+    ----------
+    pixels : (P,) int64; counts : (P,) int64 shaded samples of each; strata : (T,) int64 of the triangles.
+    """
+    counts = np.asarray(counts, dtype=np.int64)
+    rays = np.maximum(counts, settings.aa_coverage_rays)
+    extra = rays - counts
+    origins, directions, _, _, _ = filter_rays(scene.camera, pixels, extra, counts, settings, pixel_global)
+    triangle = tracer.intersect(origins, directions, None).index_triangle if len(origins) else np.zeros(0, np.int64)
+    extra_stratum = stratum_of(triangle, strata)
+    owner = np.concatenate([np.repeat(np.arange(len(pixels)), counts), np.repeat(np.arange(len(pixels)), extra)])
+    stratum = np.concatenate([sample_stratum, extra_stratum])
+    stride = (int(strata.max()) if len(strata) else 0) + 2
+    key, hits = np.unique(owner * stride + stratum + 1, return_counts=True)
+    pixel = key // stride
+    return Coverage(pixel, key % stride - 1, hits / rays[pixel], stride)
 
 
 def landing_pixels(position: np.ndarray) -> np.ndarray:
@@ -294,12 +383,27 @@ def sample_rgba(sample_radiance: np.ndarray, surface, scene: Scene, settings: Se
     return rgba
 
 
+def lattice_pixels(pixels: np.ndarray, shape: tuple[int, int], reach: float) -> np.ndarray:
+    """Window-local pixels (ascending) whose centres lie under the filter of any of ``pixels``: the
+    supersampled pixels grown by the filter's reach (a pixel's footprint at radius 1.5 holds the centres
+    of its 8 neighbours)."""
+    height, width = shape
+    grow = int(np.floor(reach))
+    mask = np.zeros((height + 2 * grow, width + 2 * grow), bool)
+    row, column = np.divmod(np.asarray(pixels, np.int64), width)
+    for dy in range(-grow, grow + 1):  # shifts of the filter's reach: a handful
+        for dx in range(-grow, grow + 1):
+            mask[row + grow + dy, column + grow + dx] = True
+    return np.flatnonzero(mask[grow:grow + height, grow:grow + width])
+
+
 # Samples pooled per batch: the (batch, J, J) candidate arrays stay a few tens of megabytes.
 POOL_BATCH = 32768
 
 
 def pool_samples(rgba: np.ndarray, position: np.ndarray, owner: np.ndarray, pixels: np.ndarray, counts,
-                 window: tuple[int, int, int, int], settings: Settings) -> np.ndarray:
+                 window: tuple[int, int, int, int], settings: Settings, sample_stratum: np.ndarray | None = None,
+                 coverage: Coverage | None = None, lattice_density: float = 0.0) -> np.ndarray:
     """Filtered RGBA of the supersampled pixels from all their samples, their neighbours' included.
 
     The filter footprints of neighbouring pixels overlap (radius 1.5 px by default), so a sample drawn for
@@ -312,14 +416,33 @@ def pool_samples(rgba: np.ndarray, position: np.ndarray, owner: np.ndarray, pixe
     samples: on the fence bench 9 samples pooled err like 16 unpooled. With a box filter nothing
     overlaps and this is the plain mean.
 
+    With ``coverage`` the sum is split by surface (post-stratification): the value is
+    ``sum_k c_pk m_pk / sum_k c_pk`` over the surfaces k that p's samples reach, with ``c_pk`` the share of
+    p's coverage rays on surface k and ``m_pk`` the weighted mean above taken over the samples on k alone.
+    The jump between surfaces then costs nothing: only the variation within a surface is left to the
+    shaded samples. A surface that p's coverage rays saw but no sample reached gives up its share (the
+    others are scaled up); with p's own samples among its coverage rays every pixel keeps a surface. The
+    estimate is again a ratio of consistent estimates of the same filtered value.
+
+    ``lattice_density`` > 0 says that some of the samples are pass 1's pixel centres (``owner`` -1): a
+    lattice of one point per pixel, which joins the balance heuristic as a technique of that density
+    everywhere (``w_ps = g_p(x_s) / (lattice_density + sum_q S_q g_q(x_s))``). The centres are shaded
+    already; where surfaces jump the coverage has taken the jump out, and what is left (a shadow edge on
+    one surface) they sample like a stratified grid. Their weight falls as 1 / (1 + S), so the estimate
+    stays consistent; at S = 1 a centre and a random sample share a pixel about equally.
+
     Parameters
     ----------
     rgba : (N, 4) float64           the samples' RGBA (``sample_rgba``).
     position : (N, 2) float64       their full-frame raster positions (``subpixel_samples``).
-    owner : (N,) int64              the index into ``pixels`` of the pixel each sample was drawn for.
+    owner : (N,) int64              the index into ``pixels`` of the pixel each sample was drawn for (-1
+                                    for a lattice point).
     pixels : (P,) int64             the supersampled window-local pixels.
     counts : int or (P,) int64      samples drawn for each of them (S_q).
     window : (x0, y0, x1, y1)       the camera window (full-frame pixel bounds).
+    sample_stratum : (N,) int64     surface each sample sees (-1: background), with ``coverage``.
+    coverage : Coverage or None     the pixels' coverage (``pixel_coverage``).
+    lattice_density : float         points per pixel area of the lattice among the samples (0: none).
 
     Returns
     -------
@@ -337,7 +460,11 @@ def pool_samples(rgba: np.ndarray, position: np.ndarray, owner: np.ndarray, pixe
     # ceil(-0.5 - reach) to below ceil(0.5 + reach) (4 offsets at the default radius 1.5).
     steps = np.arange(int(np.ceil(-0.5 - reach)), int(np.ceil(0.5 + reach)))
     filter_width, filter_type = settings.effective_filter_width, settings.filter_type
-    totals = np.zeros((len(pixels), 5))  # RGBA and the sum of weights
+    # Sums of RGBA and of the weights per pixel, and per (pixel, surface) entry of the coverage.
+    totals = np.zeros((len(pixels), 5))
+    entries = len(coverage.pixel) if coverage is not None else 0
+    coverage_key = coverage.key if coverage is not None else None
+    surface_totals = np.zeros((entries, 5))
     for start in range(0, len(position), POOL_BATCH):  # batches of samples
         rows = slice(start, start + POOL_BATCH)
         point = position[rows]
@@ -351,22 +478,44 @@ def pool_samples(rgba: np.ndarray, position: np.ndarray, owner: np.ndarray, pixe
         local = (np.clip(qy, y0, y1 - 1) - y0)[:, :, None] * width + (np.clip(qx, x0, x1 - 1) - x0)[:, None, :]
         target = index[local]  # (B, J, J): the supersampled pixel there, or -1
         density = density_y[:, :, None] * density_x[:, None, :] * (target >= 0)
-        mixture = (drawn[target] * density).sum(axis=(1, 2))  # how densely all pooled pixels sample here
+        # How densely all pooled pixels (and the lattice) sample here.
+        mixture = (drawn[target] * density).sum(axis=(1, 2)) + lattice_density
         # A sample lies where its own pixel's density is positive, so the mixture is too; guard rounding.
-        lonely = mixture <= 0.0
-        if lonely.any():
-            density[lonely] = 0.0
-            mixture[lonely] = 1.0
+        empty = mixture <= 0.0
+        if empty.any():
+            density[empty] = 0.0
+            mixture[empty] = 1.0
+        lonely = empty & (owner[rows] >= 0)
         weight = density / mixture[:, None, None]
         used = weight > 0.0
         pixel = target[used]
         weight = weight[used]
-        owner = np.broadcast_to(np.arange(len(point))[:, None, None], used.shape)[used]
+        sample = np.broadcast_to(np.arange(len(point))[:, None, None], used.shape)[used]
+        if lonely.any():  # unreachable in exact arithmetic: such a sample counts for its own pixel alone
+            pixel = np.concatenate([pixel, owner[rows][lonely]])
+            weight = np.concatenate([weight, np.ones(int(lonely.sum()))])
+            sample = np.concatenate([sample, np.flatnonzero(lonely)])
         values = np.concatenate([rgba[rows], np.ones((len(point), 1))], axis=1)
         for channel in range(5):  # RGBA and the weights
-            totals[:, channel] += np.bincount(pixel, weights=weight * values[owner, channel], minlength=len(pixels))
-        if lonely.any():  # unreachable in exact arithmetic: such a sample counts for its own pixel alone
-            own = owner[rows][lonely]
-            np.add.at(totals, own, values[lonely])
-    return totals[:, :4] / totals[:, 4:]
-
+            totals[:, channel] += np.bincount(pixel, weights=weight * values[sample, channel], minlength=len(pixels))
+        if coverage is not None:
+            key = pixel * coverage.stride + sample_stratum[rows][sample] + 1
+            slot = np.minimum(np.searchsorted(coverage_key, key), entries - 1)
+            # A surface that the pixel's coverage rays missed has no measured share there: drop the pair.
+            seen = coverage_key[slot] == key
+            slot, weight, sample = slot[seen], weight[seen], sample[seen]
+            for channel in range(5):  # RGBA and the weights
+                surface_totals[:, channel] += np.bincount(slot, weights=weight * values[sample, channel],
+                                                          minlength=entries)
+    plain = totals[:, :4] / np.maximum(totals[:, 4:], 1e-300)
+    if coverage is None:
+        return plain
+    reached = surface_totals[:, 4] > 0.0
+    share = np.where(reached, coverage.fraction, 0.0)
+    mean = surface_totals[:, :4] / np.where(reached, surface_totals[:, 4], 1.0)[:, None]
+    kept = np.bincount(coverage.pixel, weights=share, minlength=len(pixels))
+    stratified = np.stack([np.bincount(coverage.pixel, weights=share * mean[:, channel], minlength=len(pixels))
+                           for channel in range(4)], axis=1) / np.maximum(kept, 1e-300)[:, None]
+    # A pixel none of whose covered surfaces any sample reached (its own samples are among its coverage
+    # rays, so only a pixel without samples of its own) keeps the plain mean.
+    return np.where((kept > 0.0)[:, None], stratified, plain)

@@ -334,6 +334,21 @@ def _components(start: np.ndarray, end: np.ndarray, n_vertices: int, max_rounds:
     return None
 
 
+def triangle_components(triangles: np.ndarray) -> np.ndarray:
+    """Connected surfaces of a triangle soup: (T,) int64 label of each triangle (T, 3, 3), equal for
+    triangles joined through shared vertex positions. A mesh whose labels do not settle (see
+    ``_components``) counts as one surface."""
+    n = len(triangles)
+    if n == 0:
+        return np.zeros(0, np.int64)
+    _, vertex_id = _unique_points(np.asarray(triangles, np.float64).reshape(-1, 3))
+    vertex_id = vertex_id.reshape(n, 3)
+    label = _components(vertex_id[:, :2].reshape(-1), vertex_id[:, 1:].reshape(-1), int(vertex_id.max()) + 1)
+    if label is None:
+        return np.zeros(n, np.int64)
+    return label[vertex_id[:, 0]]
+
+
 def silhouette_planes(parts: ConvexParts, part: np.ndarray, receiver: np.ndarray
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The cone from each receiver through a convex part, as planes through its silhouette edges.

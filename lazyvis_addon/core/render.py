@@ -13,7 +13,8 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 
 from .antialias import (allocate_samples, cull_to_samples, edge_contrast, foreign_samples, inherit_blockers,
-                        landing_pixels, pool_samples, refine_pixels, sample_rgba, subpixel_samples)
+                        landing_pixels, lattice_pixels, pixel_coverage, pool_samples, refine_pixels, sample_rgba,
+                        stratum_of, subpixel_samples, surface_strata)
 from .blockers import BlockerPolygons
 from .blocker_map import BlockerMap, build_blocker_map, flood_fill, reference_blocker_map
 from .camera import camera_rays, planar_depth, window_pixels
@@ -154,10 +155,18 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
                        (outer_map, outer, outer_surface) if lazy else None, verify)
             seen = radiance + surface.emission
             counts = allocate_samples(edge_contrast(seen, (height, width), pixels), settings.aa_samples)
-            rgba, position = _shade_samples(pixels, counts, *shading)
-            owner = np.repeat(np.arange(len(pixels)), counts)
-            stats["aa_samples_shaded"] = int(counts.sum())
-            resolved = (pixels, pool_samples(rgba, position, owner, pixels, counts, camera.window, settings), counts)
+            covered = settings.aa_coverage_rays > 0
+            # With coverage the pixel's centre, shaded already, is one of its samples.
+            drawn = counts - 1 if covered else counts
+            rgba, position, triangle = _shade_samples(pixels, drawn, *shading)
+            stats["aa_samples_shaded"] = int(drawn.sum())
+            if covered:
+                pooled = _pool_with_coverage(scene, tracer, surface, radiance, pixels, drawn, rgba, position, triangle,
+                                             settings, pixel_global, stats)
+            else:
+                owner = np.repeat(np.arange(len(pixels)), counts)
+                pooled = pool_samples(rgba, position, owner, pixels, counts, camera.window, settings)
+            resolved = (pixels, pooled, counts)
 
     progress.begin_stage("Composing passes")
     output = _compose(scene, surface, radiance, blockers, settings, (height, width), resolved)
@@ -345,11 +354,12 @@ def _shade_verified(surface: SurfacePoints, frames, polygons, tracer, blockers: 
 
 def _shade_samples(pixels: np.ndarray, counts: np.ndarray, scene: Scene, tracer, extent: float,
                    settings: Settings, pixel_global: np.ndarray, frames, polygons, progress: Progress, stats: dict,
-                   lazy_state, verify: bool) -> tuple[np.ndarray, np.ndarray]:
+                   lazy_state, verify: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Shade ``counts`` (P,) anti-aliasing samples of each of ``pixels`` (P,).
 
     ``lazy_state`` is (outer_map, outer window, outer_surface) of the lazy integrators, None otherwise.
-    Returns (N, 4) RGBA and (N, 2) raster positions of the N = counts.sum() samples, pixel-major.
+    Returns (N, 4) RGBA, (N, 2) raster positions and (N,) triangles seen (-1: none) of the N = counts.sum()
+    samples, pixel-major.
     """
     sub, position, sub_global = subpixel_samples(scene, tracer, extent, pixels, settings, pixel_global, counts)
     landing = landing_pixels(position)
@@ -371,7 +381,32 @@ def _shade_samples(pixels: np.ndarray, counts: np.ndarray, scene: Scene, tracer,
             reference_blocker_map(sub, frames, polygons, (len(sub), 1), settings, progress)
         sub_radiance, _, _ = _illuminate(sub, frames, polygons, tracer, sub_map, settings, sub_global,
                                          progress, scene.materials)
-    return sample_rgba(sub_radiance, sub, scene, settings), position
+    return sample_rgba(sub_radiance, sub, scene, settings), position, sub.index_triangle
+
+
+def _pool_with_coverage(scene: Scene, tracer, surface: SurfacePoints, radiance: np.ndarray, pixels: np.ndarray,
+                        drawn: np.ndarray, rgba: np.ndarray, position: np.ndarray, triangle: np.ndarray,
+                        settings: Settings, pixel_global: np.ndarray, stats: dict) -> np.ndarray:
+    """Filtered RGBA (P, 4) of the anti-aliased ``pixels`` from their ``drawn`` (P,) shaded samples (RGBA
+    (N, 4), raster positions (N, 2), triangles seen (N,)), coverage rays and the centres of the pixels
+    under their filters (pass 1's radiance (H * W, 3) over the window's ``surface``).
+
+    Which surface each sample, coverage ray and centre sees: the jumps between surfaces come from the
+    cheap coverage rays, and the shaded points only average within each surface (``pool_samples``).
+    """
+    camera = scene.camera
+    strata = surface_strata(scene)
+    sample_stratum = stratum_of(triangle, strata)
+    coverage = pixel_coverage(scene, tracer, pixels, drawn, sample_stratum, strata, settings, pixel_global)
+    stats["aa_coverage_rays"] = int(np.maximum(drawn, settings.aa_coverage_rays).sum())
+    lattice = lattice_pixels(pixels, camera.window_shape, settings.filter_reach)
+    xs, ys = window_pixels(camera)
+    centres = np.stack([xs[lattice], ys[lattice]], axis=1) + 0.5
+    owner = np.concatenate([np.repeat(np.arange(len(pixels)), drawn), np.full(len(lattice), -1)])
+    return pool_samples(np.concatenate([rgba, sample_rgba(radiance[lattice], surface.take(lattice), scene, settings)]),
+                        np.concatenate([position, centres]), owner, pixels, drawn, camera.window, settings,
+                        np.concatenate([sample_stratum, stratum_of(surface.index_triangle[lattice], strata)]),
+                        coverage, lattice_density=1.0)
 
 
 def _compose(scene: Scene, surface: SurfacePoints, radiance: np.ndarray, blockers: BlockerMap | None,

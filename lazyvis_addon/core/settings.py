@@ -53,6 +53,14 @@ class Settings:
         their neighbourhood) on average: each gets from 2 up to 4 times that many, in proportion to its
         radiance step (``antialias.allocate_samples``), placed by the pixel filter and pooled with the
         neighbouring edge pixels' samples under its footprint; 1 shades pixel centres only.
+    aa_coverage_rays : int
+        Camera rays per anti-aliased pixel that only find which surface they hit (no shading): the pixel
+        is the sum over the surfaces under its filter (connected meshes, told apart by material too) of
+        the fraction of these rays each covers times the mean of the shaded samples on it
+        (``antialias.pool_samples``). A silhouette edge then costs a shaded sample on each side instead of
+        many: on the fence bench 2 samples with 16 coverage rays err 3x less than 2 samples alone.
+        A pixel's shaded samples count among its coverage rays; 0 turns coverage off (the filtered mean of
+        the samples alone).
     filter_width : float
         Pixel filter width in pixels, Cycles' Film > Pixel Filter > Width (``scene.cycles.filter_width``;
         1.5 default): the Blackman-Harris window's radius.
@@ -99,6 +107,7 @@ class Settings:
     umbra_detection: bool = True
     extend_fill: bool = False
     aa_samples: int = 16
+    aa_coverage_rays: int = 16
     filter_width: float = 1.5
     filter_type: str = "BLACKMAN_HARRIS"
     aa_threshold: float = 0.1
@@ -119,7 +128,7 @@ class Settings:
                              f"not {self.glossy_integrator!r}")
         if self.connectivity not in (4, 8):
             raise ValueError(f"connectivity must be 4 or 8, not {self.connectivity!r}")
-        for name in ("verify_rays", "refine_rounds"):
+        for name in ("verify_rays", "refine_rounds", "aa_coverage_rays"):
             value = getattr(self, name)
             if not isinstance(value, int) or value < 0:
                 raise ValueError(f"{name} must be a non-negative integer, not {value!r}")

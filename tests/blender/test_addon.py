@@ -74,12 +74,13 @@ def test_every_setting_has_a_property_and_reaches_settings(scene):
     scene.cycles.pixel_filter_type = "GAUSSIAN"
     scene.render.filter_size = 2.0  # EEVEE's, not read
     props.aa_samples = 4
+    props.aa_coverage_rays = 8
     assert settings_from_scene(scene) == Settings(
         integrator="reduced_mc", glossy_integrator="phong",
         shadow_rays=7, mc_samples=33, connectivity=4, umbra_detection=False, seed=12,
         frame=42, transparent_background=True, memory_budget_mb=512.0, pixel_batch=4096,
         window_margin=5, threads=3, merge_quads=False, filter_width=0.75, filter_type="GAUSSIAN",
-        aa_samples=4)
+        aa_samples=4, aa_coverage_rays=8)
 
 
 def run_python(code: str) -> subprocess.CompletedProcess:
