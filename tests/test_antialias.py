@@ -394,13 +394,13 @@ def test_coverage_counts_what_each_ray_sees():
     settings = Settings(aa_samples=4, aa_coverage_rays=8)
     pixel_global = _global_pixels(scene.camera)
     pixels = np.arange(24 * 24)
-    counts = np.tile([1, 3, 8, 11], len(pixels) // 4)  # fewer, as many as and more samples than rays
+    counts = np.tile([1, 2, 3, 11], len(pixels) // 4)  # 8 rays, and 4 per sample beyond
     strata = surface_strata(scene)
     assert len(np.unique(strata)) == 4  # the plane and three rods
     origins, directions, _, _, _ = filter_rays(scene.camera, pixels, counts, 0, settings, pixel_global)
     sample_stratum = stratum_of(tracer.intersect(origins, directions, None).index_triangle, strata)
     coverage = pixel_coverage(scene, tracer, pixels, counts, sample_stratum, strata, settings, pixel_global)
-    rays = np.maximum(counts, 8)
+    rays = np.maximum(4 * counts, 8)  # COVERAGE_RAYS_PER_SAMPLE
     origins, directions, _, parent, _ = filter_rays(scene.camera, pixels, rays, 0, settings, pixel_global)
     seen = stratum_of(tracer.intersect(origins, directions, None).index_triangle, strata)
     owner = np.repeat(np.arange(len(pixels)), rays)
@@ -507,6 +507,34 @@ def test_edge_samples_go_where_the_contrast_is():
     radiance[0, 0] = (0.0, 0.0, 0.5)
     got = edge_contrast(radiance.reshape(-1, 3), (4, 5), np.array([0, 1, 2, 3, 4, 7, 17]))
     np.testing.assert_allclose(got, [0.5, 0.5, 2.0, 2.0, 0.0, 2.0, 2.0])
+
+
+def test_contrast_counts_what_the_ring_outside_the_window_sees():
+    """A window pixel next to a ring pixel that sees nothing steps to the background's radiance; next to
+    one that sees another surface (no radiance computed there), to black; next to the same surface, to
+    itself. (Without this, the bottom row of floating_boxes at 96 px, where the floor ends just below the
+    frame, got the fewest samples and held 70 % of the squared error.)"""
+    from types import SimpleNamespace
+    from lazyvis_addon.core.antialias import _ring_radiance
+    height, width = 3, 4
+    triangle = np.zeros((height + 2, width + 2), np.int64)
+    triangle[0] = -1                       # nothing above the window
+    material = np.zeros_like(triangle)
+    material[:, 0] = 1                     # another material left of it
+    normal = np.zeros((height + 2, width + 2, 3))
+    normal[..., 2] = 1.0
+    seen = np.full((height + 2, width + 2, 3), 0.6)  # the window's radiance, copied into the ring
+    grids = (triangle, material, normal, seen)
+    background = np.array([0.1, 0.2, 0.3])
+    ring = _ring_radiance(SimpleNamespace(background=background), grids, Settings())
+    contrast = edge_contrast(ring, (height, width), np.arange(height * width), padded=True)
+    expected = np.zeros((height, width))
+    expected[0] = 0.5                      # 0.6 against the background's 0.1
+    expected[:, 0] = 0.6                   # 0.6 against black
+    np.testing.assert_allclose(contrast.reshape(height, width), expected)
+    transparent = _ring_radiance(SimpleNamespace(background=background), grids,
+                                 Settings(transparent_background=True))
+    np.testing.assert_allclose(edge_contrast(transparent, (height, width), np.array([1]), padded=True), [0.6])
 
 
 def test_pixels_with_different_counts_draw_the_prefixes_of_their_sequences():

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from .antialias import (allocate_samples, cull_to_samples, edge_contrast, foreign_samples, inherit_blockers,
+from .antialias import (COVERAGE_RAYS_PER_SAMPLE, allocate_samples, cull_to_samples, foreign_samples, inherit_blockers,
                         landing_pixels, lattice_pixels, pixel_coverage, pool_samples, refine_pixels, sample_rgba,
                         stratum_of, subpixel_samples, surface_strata)
 from .blockers import BlockerPolygons
@@ -148,13 +148,12 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
     resolved = None
     if settings.aa_samples > 1 and surface.hit.any():
         progress.begin_stage("Anti-aliasing")
-        pixels = refine_pixels(scene, surface, radiance, (height, width), settings, tracer)
+        pixels, contrast = refine_pixels(scene, surface, radiance, (height, width), settings, tracer)
         stats["aa_pixels"] = len(pixels)
         if len(pixels):
             shading = (scene, tracer, extent, settings, pixel_global, frames, polygons, progress, stats,
                        (outer_map, outer, outer_surface) if lazy else None, verify)
-            seen = radiance + surface.emission
-            counts = allocate_samples(edge_contrast(seen, (height, width), pixels), settings.aa_samples)
+            counts = allocate_samples(contrast, settings.aa_samples)
             covered = settings.aa_coverage_rays > 0
             # With coverage the pixel's centre, shaded already, is one of its samples.
             drawn = counts - 1 if covered else counts
@@ -398,7 +397,7 @@ def _pool_with_coverage(scene: Scene, tracer, surface: SurfacePoints, radiance: 
     strata = surface_strata(scene)
     sample_stratum = stratum_of(triangle, strata)
     coverage = pixel_coverage(scene, tracer, pixels, drawn, sample_stratum, strata, settings, pixel_global)
-    stats["aa_coverage_rays"] = int(np.maximum(drawn, settings.aa_coverage_rays).sum())
+    stats["aa_coverage_rays"] = int(np.maximum(COVERAGE_RAYS_PER_SAMPLE * drawn, settings.aa_coverage_rays).sum())
     lattice = lattice_pixels(pixels, camera.window_shape, settings.filter_reach)
     xs, ys = window_pixels(camera)
     centres = np.stack([xs[lattice], ys[lattice]], axis=1) + 0.5

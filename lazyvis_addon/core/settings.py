@@ -59,8 +59,8 @@ class Settings:
         the fraction of these rays each covers times the mean of the shaded samples on it
         (``antialias.pool_samples``). A silhouette edge then costs a shaded sample on each side instead of
         many: on the fence bench 2 samples with 16 coverage rays err 3x less than 2 samples alone.
-        A pixel's shaded samples count among its coverage rays; 0 turns coverage off (the filtered mean of
-        the samples alone).
+        A pixel gets at least 4 coverage rays per shaded sample (``antialias.COVERAGE_RAYS_PER_SAMPLE``),
+        its samples among them; 0 turns coverage off (the filtered mean of the samples alone).
     filter_width : float
         Pixel filter width in pixels, Cycles' Film > Pixel Filter > Width (``scene.cycles.filter_width``;
         1.5 default): the Blackman-Harris window's radius.
