@@ -15,8 +15,9 @@ Coverage rays (``aa_coverage_rays``, beyond the paper) split an edge pixel's val
 mesh and material): cheap camera rays that shade nothing measure how much of the pixel's filter each
 surface covers, and the shaded samples, pass 1's centres among them, give each surface's mean radiance.
 An object's outline then needs no more than a sample on each side, as in a rasteriser's multisample
-anti-aliasing (coverage at many points, shading at few); sharp shadows and texture within one surface
-still take samples.
+anti-aliasing (coverage at many points, shading at few; Ragan-Kelley et al., "Decoupled sampling for
+graphics pipelines", ACM TOG 30(3), 2011); sharp shadows and texture within one surface still take
+samples. In survey sampling this is post-stratification (Holt and Smith, JRSS A 142, 1979).
 
 The window's outermost pixels have neighbours outside it, which the filter (radius 1.5 px by default)
 reaches as well: a ring of camera rays one pixel outside the window tells whether those see another
