@@ -23,6 +23,7 @@ from lazyvis_addon.core.surface import scene_extent
 from lazyvis_addon.core.trace import RayTracer
 
 render_module = importlib.import_module("lazyvis_addon.core.render")  # the package exports render()
+antialias_module = importlib.import_module("lazyvis_addon.core.antialias")
 
 
 def rods_scene(resolution=48, count=7):
@@ -384,7 +385,7 @@ def test_centres_weigh_in_by_the_balance_heuristic():
     np.testing.assert_allclose(pooled[0], [expected, expected, expected, 1.0], rtol=1e-12)
 
 
-def test_coverage_counts_what_each_ray_sees():
+def test_coverage_counts_what_each_ray_sees(monkeypatch):
     """pixel_coverage: the shaded samples are the first points of each pixel's filter sequence and the
     coverage rays continue it, so the coverage equals a recount of all its points traced afresh; the
     shares of a pixel sum to 1. Surfaces are connected meshes told apart by material: the plane and each
@@ -409,6 +410,11 @@ def test_coverage_counts_what_each_ray_sees():
     np.testing.assert_allclose(coverage.fraction, hits / rays[key // coverage.stride], rtol=1e-15)
     np.testing.assert_allclose(np.bincount(coverage.pixel, weights=coverage.fraction), 1.0, rtol=1e-12)
     assert (coverage.stratum == -1).any() and len(np.unique(coverage.stratum)) == 5
+    # Traced in batches of a few pixels' rays: the same coverage.
+    monkeypatch.setattr(antialias_module, "COVERAGE_BATCH", 50)
+    batched = pixel_coverage(scene, tracer, pixels, counts, sample_stratum, strata, settings, pixel_global)
+    np.testing.assert_array_equal(batched.key, coverage.key)
+    np.testing.assert_array_equal(batched.fraction, coverage.fraction)
     # The centres under a pixel's filter: its 8 neighbours at radius 1.5, inside the window.
     np.testing.assert_array_equal(lattice_pixels(np.array([0, 30]), (6, 8), 1.5),
                                   [0, 1, 8, 9, 21, 22, 23, 29, 30, 31, 37, 38, 39])

@@ -311,11 +311,15 @@ class Coverage:
 COVERAGE_RAYS_PER_SAMPLE = 4
 
 
+# Coverage rays traced per batch: bounds the ray arrays (about 150 bytes a ray) at a 1080p frame's edges.
+COVERAGE_BATCH = 1 << 20
+
+
 def pixel_coverage(scene: Scene, tracer, pixels: np.ndarray, counts: np.ndarray, sample_stratum: np.ndarray,
                    strata: np.ndarray, settings: Settings, pixel_global: np.ndarray) -> Coverage:
     """Coverage of each supersampled pixel from ``max(aa_coverage_rays, COVERAGE_RAYS_PER_SAMPLE * counts)``
-    points of its filter sequence: its shaded samples are the first ``counts`` of them (``sample_stratum`` (N,) int64 says what
-    they hit), the rest are camera rays that only find the triangle they hit.
+    points of its filter sequence: its shaded samples are the first ``counts`` of them (``sample_stratum``
+    (N,) int64 says what they hit, pixel-major), the rest are camera rays that only find what they hit.
 
     Parameters
     ----------
@@ -324,15 +328,25 @@ def pixel_coverage(scene: Scene, tracer, pixels: np.ndarray, counts: np.ndarray,
     counts = np.asarray(counts, dtype=np.int64)
     rays = np.maximum(COVERAGE_RAYS_PER_SAMPLE * counts, settings.aa_coverage_rays)
     extra = rays - counts
-    origins, directions, _, _, _ = filter_rays(scene.camera, pixels, extra, counts, settings, pixel_global)
-    triangle = tracer.intersect(origins, directions, None).index_triangle if len(origins) else np.zeros(0, np.int64)
-    extra_stratum = stratum_of(triangle, strata)
-    owner = np.concatenate([np.repeat(np.arange(len(pixels)), counts), np.repeat(np.arange(len(pixels)), extra)])
-    stratum = np.concatenate([sample_stratum, extra_stratum])
+    first_sample = np.concatenate([[0], np.cumsum(counts)])
     stride = (int(strata.max()) if len(strata) else 0) + 2
-    key, hits = np.unique(owner * stride + stratum + 1, return_counts=True)
+    bounds = np.unique(np.concatenate([[0], np.searchsorted(np.cumsum(extra), np.arange(COVERAGE_BATCH, int(extra.sum()),
+                                                                                         COVERAGE_BATCH)),
+                                       [len(pixels)]]))
+    keys, hits = [], []
+    for lo, hi in zip(bounds[:-1], bounds[1:]):  # batches of pixels, a million rays each
+        origins, directions, _, _, _ = filter_rays(scene.camera, pixels[lo:hi], extra[lo:hi], counts[lo:hi], settings,
+                                                   pixel_global)
+        triangle = tracer.intersect(origins, directions, None).index_triangle if len(origins) else \
+            np.zeros(0, np.int64)
+        owner = np.concatenate([np.repeat(np.arange(lo, hi), counts[lo:hi]), np.repeat(np.arange(lo, hi), extra[lo:hi])])
+        stratum = np.concatenate([sample_stratum[first_sample[lo]:first_sample[hi]], stratum_of(triangle, strata)])
+        key, hit = np.unique(owner * stride + stratum + 1, return_counts=True)
+        keys.append(key)
+        hits.append(hit)
+    key, hit = np.concatenate(keys), np.concatenate(hits)
     pixel = key // stride
-    return Coverage(pixel, key % stride - 1, hits / rays[pixel], stride)
+    return Coverage(pixel, key % stride - 1, hit / rays[pixel], stride)
 
 
 def landing_pixels(position: np.ndarray) -> np.ndarray:
