@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from lazyvis_addon.core import Camera, Lights, Materials, Progress, RenderCancelled, Scene, Settings, render
-from lazyvis_addon.core import demo_scenes
+from lazyvis_addon.core import demo_scenes, illumination
 from lazyvis_addon.core.blocker_map import BlockerMap, detect_seeds, reference_blocker_map
 from lazyvis_addon.core.blockers import BlockerPolygons
 from lazyvis_addon.core.demo_scenes import plane_under_light, quad_triangles
@@ -376,9 +376,10 @@ def test_blockers_without_a_cone_remove_nothing():
 
 
 @pytest.mark.parametrize("merge", [False, True])
-def test_signed_terms_integrate_like_disjoint_pieces(merge):
+def test_signed_terms_integrate_like_disjoint_pieces(merge, monkeypatch):
     """Inclusion–exclusion terms give Lambert's formula the same value as the disjoint pieces, with every
-    blocker of every pixel in the lists (overlapping triangles of one box, boxes behind boxes)."""
+    blocker of every pixel in the lists (overlapping triangles of one box, boxes behind boxes); also where
+    couples with more cones than ``SIGNED_MAX_CONES`` take disjoint pieces among the others' terms."""
     scene = demo_scenes.floating_boxes(resolution=40, n_boxes=16).validated()
     tracer = RayTracer(scene.triangles)
     surface = _primary(scene, tracer, scene_extent(scene), Settings(), Progress())
@@ -392,6 +393,11 @@ def test_signed_terms_integrate_like_disjoint_pieces(merge):
     expected = analytic(disjoint, surface, frames)
     assert (expected > 0).mean() > 0.3 and (expected == 0).any()  # lit, shadowed and hidden couples
     np.testing.assert_allclose(analytic(signed, surface, frames), expected, rtol=1e-9, atol=1e-13 * expected.max())
+    for max_cones in (signed.max_rounds - 1, 1000):  # some couples by disjoint pieces; all by terms
+        monkeypatch.setattr(illumination, "SIGNED_MAX_CONES", max_cones)
+        mixed = visible_pieces(surface, frames, polygons, blockers, signed=True)
+        np.testing.assert_allclose(analytic(mixed, surface, frames), expected, rtol=1e-9,
+                                   atol=1e-13 * expected.max())
 
 
 def test_extended_fill_adds_a_boundary_ring_and_only_corrects_pixels(boxes_scene):
