@@ -409,6 +409,7 @@ def test_coverage_counts_what_each_ray_sees(monkeypatch):
     np.testing.assert_array_equal(coverage.key, key)
     np.testing.assert_allclose(coverage.fraction, hits / rays[key // coverage.stride], rtol=1e-15)
     np.testing.assert_allclose(np.bincount(coverage.pixel, weights=coverage.fraction), 1.0, rtol=1e-12)
+    assert coverage.rays == rays.sum()
     assert (coverage.stratum == -1).any() and len(np.unique(coverage.stratum)) == 5
     # Traced in batches of a few pixels' rays: the same coverage.
     monkeypatch.setattr(antialias_module, "COVERAGE_BATCH", 50)

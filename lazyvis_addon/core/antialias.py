@@ -269,7 +269,7 @@ def surface_strata(scene: Scene) -> np.ndarray:
     if len(scene.triangles) == 0:
         return np.zeros(0, np.int64)
     component = triangle_components(scene.triangles)
-    material = scene.material_index if len(scene.material_index) else np.zeros(len(component), np.int64)
+    material = scene.material_index
     _, stratum = np.unique(component * (int(material.max()) + 1) + material, return_inverse=True)
     return stratum.reshape(-1).astype(np.int64)
 
@@ -292,12 +292,14 @@ class Coverage:
     stratum : (C,) int64     surface (``surface_strata``), -1 for the background.
     fraction : (C,) float64  share of the pixel's coverage rays that see it (1 in sum per pixel).
     stride : int             ``key = pixel * stride + stratum + 1`` orders the entries.
+    rays : int               coverage rays of all the pixels, their shaded samples included.
     """
 
     pixel: np.ndarray
     stratum: np.ndarray
     fraction: np.ndarray
     stride: int
+    rays: int = 0
 
     @property
     def key(self) -> np.ndarray:
@@ -330,23 +332,24 @@ def pixel_coverage(scene: Scene, tracer, pixels: np.ndarray, counts: np.ndarray,
     extra = rays - counts
     first_sample = np.concatenate([[0], np.cumsum(counts)])
     stride = (int(strata.max()) if len(strata) else 0) + 2
-    bounds = np.unique(np.concatenate([[0], np.searchsorted(np.cumsum(extra), np.arange(COVERAGE_BATCH, int(extra.sum()),
-                                                                                         COVERAGE_BATCH)),
-                                       [len(pixels)]]))
+    # Pixel ranges of about COVERAGE_BATCH extra rays each.
+    cuts = np.searchsorted(np.cumsum(extra), np.arange(COVERAGE_BATCH, int(extra.sum()), COVERAGE_BATCH))
+    bounds = np.unique(np.concatenate([[0], cuts, [len(pixels)]]))
     keys, hits = [], []
     for lo, hi in zip(bounds[:-1], bounds[1:]):  # batches of pixels, a million rays each
-        origins, directions, _, _, _ = filter_rays(scene.camera, pixels[lo:hi], extra[lo:hi], counts[lo:hi], settings,
-                                                   pixel_global)
+        origins, directions, _, _, _ = filter_rays(scene.camera, pixels[lo:hi], extra[lo:hi], counts[lo:hi],
+                                                   settings, pixel_global)
         triangle = tracer.intersect(origins, directions, None).index_triangle if len(origins) else \
             np.zeros(0, np.int64)
-        owner = np.concatenate([np.repeat(np.arange(lo, hi), counts[lo:hi]), np.repeat(np.arange(lo, hi), extra[lo:hi])])
+        batch = np.arange(lo, hi)
+        owner = np.concatenate([np.repeat(batch, counts[lo:hi]), np.repeat(batch, extra[lo:hi])])
         stratum = np.concatenate([sample_stratum[first_sample[lo]:first_sample[hi]], stratum_of(triangle, strata)])
         key, hit = np.unique(owner * stride + stratum + 1, return_counts=True)
         keys.append(key)
         hits.append(hit)
     key, hit = np.concatenate(keys), np.concatenate(hits)
     pixel = key // stride
-    return Coverage(pixel, key % stride - 1, hit / rays[pixel], stride)
+    return Coverage(pixel, key % stride - 1, hit / rays[pixel], stride, int(rays.sum()))
 
 
 def landing_pixels(position: np.ndarray) -> np.ndarray:

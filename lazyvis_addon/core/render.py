@@ -12,8 +12,8 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from .antialias import (COVERAGE_RAYS_PER_SAMPLE, allocate_samples, cull_to_samples, foreign_samples, inherit_blockers,
-                        landing_pixels, lattice_pixels, pixel_coverage, pool_samples, refine_pixels, sample_rgba,
+from .antialias import (allocate_samples, cull_to_samples, foreign_samples, inherit_blockers, landing_pixels,
+                        lattice_pixels, pixel_coverage, pool_samples, refine_pixels, sample_rgba,
                         stratum_of, subpixel_samples, surface_strata)
 from .blockers import BlockerPolygons
 from .blocker_map import BlockerMap, build_blocker_map, flood_fill, reference_blocker_map
@@ -397,7 +397,7 @@ def _pool_with_coverage(scene: Scene, tracer, surface: SurfacePoints, radiance: 
     strata = surface_strata(scene)
     sample_stratum = stratum_of(triangle, strata)
     coverage = pixel_coverage(scene, tracer, pixels, drawn, sample_stratum, strata, settings, pixel_global)
-    stats["aa_coverage_rays"] = int(np.maximum(COVERAGE_RAYS_PER_SAMPLE * drawn, settings.aa_coverage_rays).sum())
+    stats["aa_coverage_rays"] = coverage.rays
     lattice = lattice_pixels(pixels, camera.window_shape, settings.filter_reach)
     xs, ys = window_pixels(camera)
     centres = np.stack([xs[lattice], ys[lattice]], axis=1) + 0.5
