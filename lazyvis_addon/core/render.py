@@ -22,7 +22,9 @@ from .geometry import light_frames
 from .parallel import map_batches, thread_count
 from .bsdf import SurfaceBsdf
 from .geometry import light_groups
-from .illumination import couple_weights, reflected_radiance, standard_mc, verify_visible, visible_pieces
+from .illumination import (VisiblePieces, couple_weights, couples_for, reflected_radiance, standard_mc,
+                           verify_visible, visible_pieces)
+from .silhouettes import MeshEdges, silhouette_pieces
 from .progress import Progress
 from .scene import Scene
 from .settings import Settings
@@ -89,9 +91,16 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
     pixel_global = _global_pixels(camera)
     polygons = BlockerPolygons.from_triangles(scene.triangles, merge=settings.merge_quads)
     stats["blocker_polygons"] = len(polygons)
-    lazy = settings.integrator in ("analytic", "reduced_mc")
+    lazy = settings.integrator in ("analytic", "reduced_mc") and not settings.uses_silhouettes
     blockers = None
-    if lazy:
+    edges = None
+    if settings.uses_silhouettes:
+        surface = _primary(scene, tracer, extent, settings, progress)
+        progress.begin_stage("Building edge tree")
+        edges = MeshEdges.from_triangles(scene.triangles, frames)
+        progress.end_stage()
+        stats["edge_records"] = len(edges)
+    elif lazy:
         # Pass 1 runs over the window grown by a margin; pass 2 shades only the window.
         outer = _grown_window(camera, settings.window_margin)
         outer_surface = _primary(scene, tracer, extent, settings, progress, outer)
@@ -112,7 +121,11 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
 
     verify = lazy and settings.verify_rays > 0 and len(frames) > 0
     radiance, pass2_stats, missed = _illuminate(surface, frames, polygons, tracer, blockers, settings, pixel_global,
-                                                progress, scene.materials, verify)
+                                                progress, scene.materials, verify, edges)
+    if edges is not None:
+        # The passes' blocker count becomes the silhouette arcs crossing the pixel's lights.
+        blockers = BlockerMap(np.repeat(np.arange(n_pixels), pass2_stats.pop("arcs_per_pixel")),
+                              np.zeros(0, np.int64), np.zeros(0, np.int64), pass2_stats.pop("umbra"))
     stats.update(pass2_stats)
     stats["missed_pairs_found"] = []
     for _ in range(settings.refine_rounds if verify else 0):  # refinement rounds: a few
@@ -152,7 +165,7 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
         stats["aa_pixels"] = len(pixels)
         if len(pixels):
             shading = (scene, tracer, extent, settings, pixel_global, frames, polygons, progress, stats,
-                       (outer_map, outer, outer_surface) if lazy else None, verify)
+                       (outer_map, outer, outer_surface) if lazy else None, verify, edges)
             counts = allocate_samples(contrast, settings.aa_samples)
             covered = settings.aa_coverage_rays > 0
             # With coverage the pixel's centre, shaded already, is one of its samples.
@@ -219,18 +232,22 @@ MIN_SHARED_BATCH = 2048
 
 
 def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: BlockerMap | None, settings: Settings,
-                pixel_global: np.ndarray, progress: Progress, materials, verify: bool = False
-                ) -> tuple[np.ndarray, dict, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """Pass 2 over pixel batches.
+                pixel_global: np.ndarray, progress: Progress, materials, verify: bool = False,
+                edges: MeshEdges | None = None) -> tuple[np.ndarray, dict, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Pass 2 over pixel batches: by the blocker map ``blockers``, or by silhouettes when ``edges`` is given.
 
     Returns
     -------
-    radiance : (N, 3) outgoing radiance; stats : dict;
+    radiance : (N, 3) outgoing radiance; stats : dict (with ``edges``, also "umbra" (N, L) bool and
+    "arcs_per_pixel" (N,) int64 arrays);
     missed : (pixel, blocker, light) pairs that verification rays found missing (pixel indexes ``surface``).
     """
     n_pixels = len(surface)
     radiance = np.zeros((n_pixels, 3))
     stats = {"pieces": 0, "max_blockers_per_couple": 0, "verify_rays": 0}
+    if edges is not None:
+        stats.update(umbra=np.zeros((n_pixels, len(frames)), bool), arcs_per_pixel=np.zeros(n_pixels, np.int64),
+                     edge_tests=0, arcs=0, depth_rays=0, inconsistent_couples=0)
     empty = np.zeros(0, np.int64)
     if len(frames) == 0:
         return radiance, stats, (empty, empty, empty)
@@ -254,6 +271,26 @@ def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: Bloc
         result = np.zeros((stop - start, 3))
         n_pieces, rounds, verify_rays, found = 0, 0, 0, []
         local = None
+        extra = {"umbra": np.zeros((stop - start, len(frames)), bool), "arcs_per_pixel": np.zeros(stop - start, np.int64),
+                 "edge_tests": 0, "arcs": 0, "depth_rays": 0, "inconsistent_couples": 0}
+        if edges is not None:
+            for lights in groups:  # lights of similar polygon size: a handful of groups
+                couples, couple_pixel = couples_for(part, frames, np.broadcast_to(~lights[None, :],
+                                                                                  (len(part), len(frames))))
+                uv, couple, sign, hidden, found_stats = silhouette_pieces(part, frames, edges, tracer, couples,
+                                                                          couple_pixel)
+                pieces = VisiblePieces(couples, couple_pixel, uv, np.full(len(couple), 3, np.int64), couple,
+                                       found_stats["max_arcs_per_couple"], sign)
+                weights = couple_weights(pieces, part, frames, bsdf, settings, globals_)
+                result += reflected_radiance(stop - start, frames, couples, couple_pixel, weights)
+                n_pieces += len(couple)
+                rounds = max(rounds, pieces.max_rounds)
+                extra["umbra"][couple_pixel[hidden], couples.light[hidden]] = True
+                extra["arcs_per_pixel"] += np.bincount(couple_pixel, weights=found_stats.pop("arcs_of_couple"),
+                                                       minlength=stop - start).astype(np.int64)
+                for name in ("edge_tests", "arcs", "depth_rays", "inconsistent_couples"):
+                    extra[name] += found_stats[name]
+            return start, stop, result, n_pieces, rounds, (empty, empty, empty, 0), extra
         if settings.integrator != "standard_mc":
             lo, hi = entry_bounds[index], entry_bounds[index + 1]
             local = BlockerMap(blockers.pixel[lo:hi] - start, blockers.light[lo:hi], blockers.blocker[lo:hi],
@@ -280,14 +317,19 @@ def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: Bloc
                     verify_rays += rays
             result += reflected_radiance(stop - start, frames, couples, couple_pixel, weights)
         missed = tuple(np.concatenate([f[i] for f in found]) if found else empty for i in range(3))
-        return start, stop, result, n_pieces, rounds, missed + (verify_rays,)
+        return start, stop, result, n_pieces, rounds, missed + (verify_rays,), None
 
     progress.begin_stage("Illumination", n_pixels)
     units = [min(start + batch, n_pixels) - start for start in starts]
     found = []
-    for start, stop, result, n_pieces, rounds, missed in map_batches(shade, range(len(starts)), threads, progress,
-                                                                     units):
+    for start, stop, result, n_pieces, rounds, missed, extra in map_batches(shade, range(len(starts)), threads,
+                                                                            progress, units):
         radiance[start:stop] = result
+        if extra is not None:
+            stats["umbra"][start:stop] = extra["umbra"]
+            stats["arcs_per_pixel"][start:stop] = extra["arcs_per_pixel"]
+            for name in ("edge_tests", "arcs", "depth_rays", "inconsistent_couples"):
+                stats[name] += extra[name]
         stats["pieces"] += n_pieces
         stats["max_blockers_per_couple"] = max(stats["max_blockers_per_couple"], rounds)
         stats["verify_rays"] += missed[3]
@@ -353,7 +395,8 @@ def _shade_verified(surface: SurfacePoints, frames, polygons, tracer, blockers: 
 
 def _shade_samples(pixels: np.ndarray, counts: np.ndarray, scene: Scene, tracer, extent: float,
                    settings: Settings, pixel_global: np.ndarray, frames, polygons, progress: Progress, stats: dict,
-                   lazy_state, verify: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   lazy_state, verify: bool, edges: MeshEdges | None = None
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Shade ``counts`` (P,) anti-aliasing samples of each of ``pixels`` (P,).
 
     ``lazy_state`` is (outer_map, outer window, outer_surface) of the lazy integrators, None otherwise.
@@ -376,10 +419,10 @@ def _shade_samples(pixels: np.ndarray, counts: np.ndarray, scene: Scene, tracer,
                                              progress, scene.materials, check, counts)
         stats["verify_rays"] += rays
     else:
-        sub_map = None if settings.integrator == "standard_mc" else \
+        sub_map = None if settings.integrator == "standard_mc" or edges is not None else \
             reference_blocker_map(sub, frames, polygons, (len(sub), 1), settings, progress)
         sub_radiance, _, _ = _illuminate(sub, frames, polygons, tracer, sub_map, settings, sub_global,
-                                         progress, scene.materials)
+                                         progress, scene.materials, edges=edges)
     return sample_rgba(sub_radiance, sub, scene, settings), position, sub.index_triangle
 
 

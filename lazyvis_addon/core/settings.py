@@ -12,6 +12,7 @@ from .film import FILTER_TYPES, half_extent
 
 INTEGRATORS = ("analytic", "reduced_mc", "standard_mc", "reference")
 GLOSSY_INTEGRATORS = ("ltc", "phong", "mc")
+VISIBILITY_METHODS = ("silhouettes", "blocker_map")
 
 
 @dataclass(frozen=True)
@@ -31,6 +32,14 @@ class Settings:
         percent off at grazing views), ``"phong"`` (the paper's Phong lobes with a peak-matched exponent:
         analytic, a cruder shape) or ``"mc"`` (``mc_samples`` directions over the visible pieces,
         unbiased). Diffuse lobes stay analytic. The two MC integrators sample every lobe.
+    visibility : str
+        How the analytic integrator finds what each pixel sees of a light. ``"silhouettes"`` (default):
+        every edge that may cross the light is found by culling an edge tree against groups of pixels
+        (complete by construction, whatever the blockers' size), and the visible region comes out exactly
+        from the silhouette arcs crossing the light and one reference depth (``silhouettes``); no pass 1,
+        no shadow-ray seeds, no verification needed. ``"blocker_map"``: the paper's pass 1 (shadow rays
+        and flood fill, which miss blockers no ray hits) and pass 2 by blocker subtraction. The Monte
+        Carlo glossy integral and the other integrators always take the blocker map (they sample pieces).
     shadow_rays : int
         Shadow rays per pixel and light in pass 1 (blocker detection), stratified over the light's solid angle.
     verify_rays : int
@@ -99,6 +108,7 @@ class Settings:
 
     integrator: str = "analytic"
     glossy_integrator: str = "ltc"
+    visibility: str = "silhouettes"
     shadow_rays: int = 4
     mc_samples: int = 16
     verify_rays: int = 0
@@ -126,6 +136,8 @@ class Settings:
         if self.glossy_integrator not in GLOSSY_INTEGRATORS:
             raise ValueError(f"glossy_integrator must be one of {', '.join(GLOSSY_INTEGRATORS)}, "
                              f"not {self.glossy_integrator!r}")
+        if self.visibility not in VISIBILITY_METHODS:
+            raise ValueError(f"visibility must be one of {', '.join(VISIBILITY_METHODS)}, not {self.visibility!r}")
         if self.connectivity not in (4, 8):
             raise ValueError(f"connectivity must be 4 or 8, not {self.connectivity!r}")
         for name in ("verify_rays", "refine_rounds", "aa_coverage_rays"):
@@ -146,6 +158,11 @@ class Settings:
             raise ValueError(f"window_margin must be a non-negative integer, not {self.window_margin!r}")
         if not self.memory_budget_mb > 0:
             raise ValueError(f"memory_budget_mb must be positive, not {self.memory_budget_mb!r}")
+
+    @property
+    def uses_silhouettes(self) -> bool:
+        """Pass 2 by silhouette arcs (no blocker map): the analytic integrator with an analytic glossy lobe."""
+        return self.visibility == "silhouettes" and self.integrator == "analytic" and self.glossy_integrator != "mc"
 
     @property
     def fills_boundary(self) -> bool:
