@@ -449,7 +449,7 @@ def test_samples_are_verified_where_their_pixel_list_does_not_hold(monkeypatch):
     (what ``verify_rays`` > 0 asks for: parallax uncovers blockers hidden at the centre). (Before samples
     were pooled across neighbouring pixels: 1.6%, 0.24%, 0.06%.)"""
     scene = demo_scenes.floating_boxes(resolution=48, n_boxes=16)
-    settings = Settings(aa_samples=16, shadow_rays=16)
+    settings = Settings(aa_samples=16, shadow_rays=16, visibility="blocker_map")  # the paper's lists
     exact = render(scene, settings.replace(integrator="reference"))
     refined = exact.sample_count > 1
     truth = exact.combined[..., :3][refined]

@@ -45,9 +45,10 @@ def test_merged_quads_change_nothing_exact_and_miss_less():
     reference = render(scene, Settings(integrator="reference", merge_quads=True)).combined
     reference_split = render(scene, Settings(integrator="reference", merge_quads=False)).combined
     np.testing.assert_allclose(reference, reference_split, rtol=1e-9, atol=1e-12 * reference.max())
-    # Detection alone (verification off): a quad is found when either of its triangles is hit.
-    merged = render(scene, Settings(merge_quads=True, verify_rays=0))
-    split = render(scene, Settings(merge_quads=False, verify_rays=0))
+    # Detection alone (the paper's blocker map, verification off): a quad is found when either of its
+    # triangles is hit.
+    merged = render(scene, Settings(merge_quads=True, verify_rays=0, visibility="blocker_map"))
+    split = render(scene, Settings(merge_quads=False, verify_rays=0, visibility="blocker_map"))
     error = lambda image: np.sqrt(np.mean((image - reference) ** 2))
     assert error(merged.combined) <= error(split.combined)
     assert merged.stats["pairs_stored"] < 0.8 * split.stats["pairs_stored"]

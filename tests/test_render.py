@@ -16,6 +16,7 @@ from lazyvis_addon.core.demo_scenes import plane_under_light, quad_triangles
 from lazyvis_addon.core.geometry import light_frames, projected_solid_angle
 from lazyvis_addon.core.illumination import analytic, outgoing_radiance, visible_pieces
 from lazyvis_addon.core.render import _primary
+from lazyvis_addon.core.settings import VISIBILITY_METHODS
 from lazyvis_addon.core.surface import scene_extent
 from lazyvis_addon.core.trace import RayTracer
 from tests.test_geometry import quadrature_projected_solid_angle
@@ -47,19 +48,23 @@ def test_unoccluded_plane_matches_quadrature():
     assert out.blocker_count.sum() == 0
 
 
-def test_blocker_covering_the_light_gives_black_and_umbra():
+@pytest.mark.parametrize("visibility", VISIBILITY_METHODS)
+def test_blocker_covering_the_light_gives_black_and_umbra(visibility):
     # One big triangle at z = 0.5 hides the whole light (half size 0.5 at z = 1) from the plane's centre
     # (umbra detection is per triangle, as in the paper); a grazing camera looks under it at the centre.
     cover = np.array([[(-1.5, -1.5, 0.5), (1.5, -1.5, 0.5), (0.0, 1.5, 0.5)]])
     scene = plane_under_light(resolution=1, blocker=cover)
     scene.camera = Camera.perspective(demo_scenes.look_at((3.0, 0.0, 0.2), (0, 0, 0)), 1, 1, np.radians(0.5))
-    out = render(scene, Settings())
+    out = render(scene, Settings(visibility=visibility))
     assert out.combined[0, 0, 0] == 0.0 and out.combined[0, 0, 3] == 1.0
     assert out.umbra[0, 0, 0]
-    assert out.blocker_count[0, 0] >= 1
+    if visibility == "blocker_map":
+        assert out.blocker_count[0, 0] >= 1  # the covering triangle's pair
+    else:
+        assert out.blocker_count[0, 0] == 0  # no arc crosses the light: the reference depth decides
     open_scene = plane_under_light(resolution=1)
     open_scene.camera = scene.camera
-    assert render(open_scene, Settings()).combined[0, 0, 0] > 0
+    assert render(open_scene, Settings(visibility=visibility)).combined[0, 0, 0] > 0
 
 
 def test_full_cover_and_half_plane_at_a_receiver():
@@ -217,8 +222,8 @@ def test_four_connectivity_also_matches(boxes_scene, boxes_reference):
 
 
 def test_umbra_detection_does_not_change_the_image(boxes_scene):
-    on = render(boxes_scene, Settings(umbra_detection=True))
-    off = render(boxes_scene, Settings(umbra_detection=False))
+    on = render(boxes_scene, Settings(umbra_detection=True, visibility="blocker_map"))
+    off = render(boxes_scene, Settings(umbra_detection=False, visibility="blocker_map"))
     assert on.umbra.any() and not off.umbra.any()
     np.testing.assert_allclose(on.combined, off.combined, atol=1e-6)
     # Where the umbra flag is set the light really is hidden: zero in the reference for that light alone.
@@ -275,9 +280,10 @@ def test_non_convex_light_and_bad_settings_are_refused():
         Settings(shadow_rays=0)
 
 
-def test_too_small_memory_budget_fails_clearly(boxes_scene):
+@pytest.mark.parametrize("visibility", VISIBILITY_METHODS)
+def test_too_small_memory_budget_fails_clearly(boxes_scene, visibility):
     with pytest.raises(MemoryError, match="memory budget"):
-        render(boxes_scene, Settings(memory_budget_mb=0.001))
+        render(boxes_scene, Settings(memory_budget_mb=0.001, visibility=visibility))
 
 
 class CancelAfter(Progress):
@@ -401,8 +407,9 @@ def test_signed_terms_integrate_like_disjoint_pieces(merge, monkeypatch):
 
 
 def test_extended_fill_adds_a_boundary_ring_and_only_corrects_pixels(boxes_scene):
-    plain = render(boxes_scene, CENTRES.replace(extend_fill=False))
-    extended = render(boxes_scene, CENTRES.replace(extend_fill=True))
+    paper = CENTRES.replace(visibility="blocker_map")
+    plain = render(boxes_scene, paper.replace(extend_fill=False))
+    extended = render(boxes_scene, paper.replace(extend_fill=True))
     # The extra pairs do not overlap the light at the centres, but a pair of a box brings the box's
     # silhouette, which covers faces the centre's list lacks: where the images differ at all, the extended
     # one is the exact one.
@@ -444,7 +451,7 @@ def test_verification_rays_find_what_detection_missed(boxes_scene, boxes_referen
     """Rays into what the map leaves visible find missed blockers: the error falls towards zero as they grow,
     and a pair found this way really is missing from the map without verification."""
     ref = boxes_reference.combined[..., :3]
-    sparse = CENTRES.replace(shadow_rays=1)
+    sparse = CENTRES.replace(shadow_rays=1, visibility="blocker_map")
     plain = render(boxes_scene, sparse)
     verified = render(boxes_scene, sparse.replace(verify_rays=32, refine_rounds=3))
     error_plain = relative_rmse(plain.combined[..., :3], ref)

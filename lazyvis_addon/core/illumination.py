@@ -540,6 +540,10 @@ def _lands_in_pieces(pieces: VisiblePieces, frames: LightFrames, couple: np.ndar
     real = np.arange(uv.shape[1])[None, :] < count[:, None]
     # Convex pieces of either winding: the point is inside when no real edge has it on the wrong side.
     inside = (np.where(real, cross, 0.0) >= 0).all(axis=1) | (np.where(real, cross, 0.0) <= 0).all(axis=1)
+    if pieces.sign is not None:
+        # Signed terms: the point is in the region where the signs of the terms holding it sum to 1.
+        held = np.bincount(sample_of[inside], weights=pieces.sign[piece[inside]], minlength=len(couple))
+        return (held > 0.5) & reaches
     landed = np.zeros(len(couple), bool)
     landed[sample_of[inside]] = True
     return landed & reaches
@@ -577,9 +581,11 @@ def glossy_analytic(pieces: VisiblePieces, frames: LightFrames, bsdf: SurfaceBsd
         per_piece = share[:, None] * bsdf.glossy_scale[pixel]
     else:
         raise ValueError(f"unknown glossy integral {method!r}")
+    if pieces.sign is not None:  # signed terms (silhouette fans): both integrals are linear in the region
+        per_piece = per_piece * pieces.sign[lobed][:, None]
     for channel in range(3):  # colour channels
         weights[:, channel] = np.bincount(couple, weights=per_piece[:, channel], minlength=n_couples)
-    return weights
+    return weights if pieces.sign is None else np.maximum(weights, 0.0)
 
 
 def couple_weights(pieces: VisiblePieces, surface: SurfacePoints, frames: LightFrames, bsdf: SurfaceBsdf,

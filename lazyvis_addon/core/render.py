@@ -24,7 +24,7 @@ from .bsdf import SurfaceBsdf
 from .geometry import light_groups
 from .illumination import (VisiblePieces, couple_weights, couples_for, reflected_radiance, standard_mc,
                            verify_visible, visible_pieces)
-from .silhouettes import MeshEdges, silhouette_pieces
+from .silhouettes import MeshEdges, row_batch_for, silhouette_pieces
 from .progress import Progress
 from .scene import Scene
 from .settings import Settings
@@ -254,6 +254,7 @@ def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: Bloc
     # Batches of at most pixel_batch, but enough of them to keep every thread busy: anti-aliasing shades
     # sets of a few thousand samples, which one batch would leave to one core.
     threads = thread_count(settings.threads)
+    row_batch = row_batch_for(settings.memory_budget_mb, threads) if edges is not None else 0
     batch = min(settings.pixel_batch, max(MIN_SHARED_BATCH, -(-n_pixels // (4 * threads))))
     # Entries are sorted by pixel, so each batch's entries form one contiguous run.
     entry_bounds = None
@@ -278,7 +279,7 @@ def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: Bloc
                 couples, couple_pixel = couples_for(part, frames, np.broadcast_to(~lights[None, :],
                                                                                   (len(part), len(frames))))
                 uv, couple, sign, hidden, found_stats = silhouette_pieces(part, frames, edges, tracer, couples,
-                                                                          couple_pixel)
+                                                                          couple_pixel, row_batch)
                 pieces = VisiblePieces(couples, couple_pixel, uv, np.full(len(couple), 3, np.int64), couple,
                                        found_stats["max_arcs_per_couple"], sign)
                 weights = couple_weights(pieces, part, frames, bsdf, settings, globals_)

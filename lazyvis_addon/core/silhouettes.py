@@ -42,10 +42,16 @@ from .geometry import PLANE_EPS, LightFrames, ReceiverLight, cross3
 LEAF_EDGES = 32
 # Triangles stored per edge record; an edge shared by more (non-manifold) is split over several records.
 MAX_INCIDENCE = 4
-# Receivers per detection group (neighbours in a Morton order of their positions).
+# Receivers per detection group (neighbours in a Morton order of their positions), and per sub-group
+# that a group's candidates are tested against again before each receiver tests them.
 GROUP_POINTS = 16
-# (receiver, edge) rows per array batch of the arc test: about 1 kB per row of temporaries.
+SUB_POINTS = 4
+# (receiver, edge) rows per array batch of the arc test, at most; the memory budget may ask for fewer.
 ROW_BATCH = 1 << 18
+# Bytes of temporaries per row of the arc test (gathered records, face signs, clipped segments).
+ROW_BYTES = 1024
+# Fewer rows per batch than this and per-batch overheads would dominate: the budget is too small.
+MIN_ROW_BATCH = 4096
 # Arc pairs per array batch of the arrangement.
 PAIR_BATCH = 1 << 20
 # Hits a reference depth ray may count before it gives up (the scene is then assumed solid there).
@@ -371,8 +377,8 @@ class Arcs:
 
 
 def couple_arcs(edges: MeshEdges, frames: LightFrames, couples: ReceiverLight, position: np.ndarray,
-                own_triangle: np.ndarray, cone: np.ndarray, cone_valid: np.ndarray, reference: np.ndarray,
-                couple: np.ndarray, record: np.ndarray) -> Arcs:
+                own_triangle: np.ndarray, cone: np.ndarray, cone_valid: np.ndarray, bound: np.ndarray,
+                reference: np.ndarray, couple: np.ndarray, record: np.ndarray, stats: dict | None = None) -> Arcs:
     """Test (couple, edge record) rows: the edges whose jump is not 0 and whose front part crosses the cone.
 
     Parameters
@@ -380,6 +386,7 @@ def couple_arcs(edges: MeshEdges, frames: LightFrames, couples: ReceiverLight, p
     position : (Nc, 3)           each couple's receiver; own_triangle : (Nc,) the triangle it lies on.
     cone : (Nc, V, 3)            inward normals of the planes through the receiver and the light's edges.
     cone_valid : (Nc, V) bool
+    bound : (Nc, 4, 3)           inward normals of the cone through the light's bounding quad (quick test).
     reference : (Nc, 3)          direction from the receiver to the reference point R.
     couple, record : (N,) int64  the rows.
     """
@@ -399,6 +406,8 @@ def couple_arcs(edges: MeshEdges, frames: LightFrames, couples: ReceiverLight, p
         sign[cut_rows] = np.where(away > 0, sign[cut_rows], 0.0)
     total = sign.sum(axis=1)
     rows = np.flatnonzero(total != 0)
+    if stats is not None:
+        stats["silhouette_rows"] = stats.get("silhouette_rows", 0) + len(rows)
     couple, record, x, total = couple[rows], record[rows], x[rows], total[rows]
     light = couples.light[couple]
     side = couples.side[couple]
@@ -421,39 +430,51 @@ def couple_arcs(edges: MeshEdges, frames: LightFrames, couples: ReceiverLight, p
     new_a = np.where((cut & ~front_a)[:, None], a + t_plane[:, None] * (b - a), a)
     new_b = np.where((cut & ~front_b)[:, None], a + t_plane[:, None] * (b - a), b)
     a, b = new_a, new_b
+    # Quick rejection by the light's bounding quad: both ends beyond one of its cone's planes.
+    va = np.einsum("nvk,nk->nv", bound[couple], a)
+    vb = np.einsum("nvk,nk->nv", bound[couple], b)
+    near = keep & ~((va < 0) & (vb < 0)).any(axis=1)
+    rows = np.flatnonzero(near)
+    couple, light, side, a, b, jump = couple[rows], light[rows], side[rows], a[rows], b[rows], jump[rows]
     normal = cross3(a, b)
     # Range inside the cone: every cone plane's value, linear along the segment, must be >= 0.
-    enter = np.zeros(len(a))
-    leave = np.ones(len(a))
-    planes, valid = cone[couple], cone_valid[couple]
+    planes, valid = cone[couple], cone_valid[couple]                          # (N, V, 3) unit, (N, V)
     unit = normal / np.maximum(np.linalg.norm(normal, axis=1), 1e-300)[:, None]
-    on_boundary = np.zeros(len(a), bool)
-    for k in range(planes.shape[1]):  # light edges: a handful
-        plane = planes[:, k] / np.maximum(np.linalg.norm(planes[:, k], axis=1), 1e-300)[:, None]
-        # An arc along the light's edge (an edge of the receiver's own face lies in the horizon that
-        # clipped the light) never crosses the inside: its jump happens on the boundary.
-        on_boundary |= valid[:, k] & (np.abs(np.einsum("nk,nk->n", plane, unit)) > 1.0 - 1e-9)
-        va = np.einsum("nk,nk->n", planes[:, k], a)
-        vb = np.einsum("nk,nk->n", planes[:, k], b)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = va / (va - vb)
-        live = valid[:, k]
-        enter = np.where(live & (va < 0) & (vb > 0), np.maximum(enter, t), enter)
-        leave = np.where(live & (va > 0) & (vb < 0), np.minimum(leave, t), leave)
-        outside = live & (va <= 0) & (vb <= 0)
-        leave = np.where(outside, -1.0, leave)
+    # An arc along the light's edge (an edge of the receiver's own face lies in the horizon that clipped
+    # the light) never crosses the inside: its jump happens on the boundary.
+    on_boundary = (valid & (np.abs(np.einsum("nvk,nk->nv", planes, unit)) > 1.0 - 1e-9)).any(axis=1)
+    va = np.einsum("nvk,nk->nv", planes, a)
+    vb = np.einsum("nvk,nk->nv", planes, b)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = va / (va - vb)
+    enter = np.where(valid & (va < 0) & (vb > 0), t, 0.0).max(axis=1)
+    leave = np.where(valid & (va > 0) & (vb < 0), t, 1.0).min(axis=1)
+    outside = (valid & (va <= 0) & (vb <= 0)).any(axis=1)
     # The segment must also point towards the light: a direction on the cone's far nappe passes every
     # plane test too.
     toward = -side[:, None] * frames.normal[light]
     mid = a + 0.5 * (enter + leave)[:, None] * (b - a)
-    ok = keep & ~on_boundary & (leave > enter + 1e-12) & (np.einsum("nk,nk->n", mid, toward) > 0)
+    ok = ~outside & ~on_boundary & (leave > enter + 1e-12) & (np.einsum("nk,nk->n", mid, toward) > 0)
     ok &= np.einsum("nk,nk->n", normal, normal) > 1e-30 * np.einsum("nk,nk->n", a, a) * np.einsum("nk,nk->n", b, b)
     rows = np.flatnonzero(ok)
     return Arcs(couple[rows], a[rows], b[rows], normal[rows], enter[rows], leave[rows], jump[rows])
 
 
+def bounding_cone(couples: ReceiverLight, frames: LightFrames) -> np.ndarray:
+    """Inward normals (Nc, 4, 3) of the cone from each receiver through the (u, v) bounding box of its
+    clipped light: a cone holding the light's, for a quick test."""
+    real = np.arange(couples.uv.shape[1])[None, :] < couples.count[:, None]
+    u, v = couples.uv[..., 0], couples.uv[..., 1]
+    u0, u1 = np.where(real, u, np.inf).min(axis=1), np.where(real, u, -np.inf).max(axis=1)
+    v0, v1 = np.where(real, v, np.inf).min(axis=1), np.where(real, v, -np.inf).max(axis=1)
+    corners = np.stack([np.stack([u0, v0], 1), np.stack([u1, v0], 1), np.stack([u1, v1], 1), np.stack([u0, v1], 1)],
+                       axis=1)
+    directions = couples.directions(frames, corners, np.arange(len(couples.count)))
+    return cone_of_light(directions, np.full(len(couples.count), 4))[0]
+
+
 def cone_of_light(directions: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Inward normals (N, V, 3) of the planes through the origin and each edge of convex polygons given
+    """Inward unit normals (N, V, 3) of the planes through the origin and each edge of convex polygons given
     by directions (N, V, 3) (padded by repeating the last vertex), and their validity (N, V)."""
     following = np.roll(directions, -1, axis=1)
     last = np.maximum(count - 1, 0)
@@ -463,6 +484,7 @@ def cone_of_light(directions: np.ndarray, count: np.ndarray) -> tuple[np.ndarray
     centre = directions.sum(axis=1)
     flip = np.einsum("nvk,nk->nv", planes, centre) < 0
     planes[flip] *= -1.0
+    planes /= np.maximum(np.linalg.norm(planes, axis=2), 1e-300)[:, :, None]
     valid = (np.arange(directions.shape[1])[None, :] < count[:, None]) & \
         (np.einsum("nvk,nvk->nv", planes, planes) > 0)
     return planes, valid
@@ -639,6 +661,19 @@ def depth_counts(tracer, origin: np.ndarray, target: np.ndarray, own_triangle: n
 _REFERENCE_WEIGHTS = 1.0 + np.modf(np.arange(1, 257) * 0.6180339887498949 + 0.1234567)[0]
 
 
+def row_batch_for(memory_budget_mb: float, threads: int) -> int:
+    """Rows per arc-test batch that keep every thread's temporaries within a quarter of the budget.
+
+    Raises MemoryError when the budget cannot hold even MIN_ROW_BATCH rows per thread.
+    """
+    rows = int(memory_budget_mb * 2 ** 20 * 0.25 / (ROW_BYTES * max(threads, 1)))
+    if rows < MIN_ROW_BATCH:
+        needed = MIN_ROW_BATCH * ROW_BYTES * max(threads, 1) * 4 / 2 ** 20
+        raise MemoryError(f"memory budget of {memory_budget_mb:g} MB is too small for the silhouette batches of "
+                          f"{max(threads, 1)} threads (at least {needed:.0f} MB); raise it")
+    return min(rows, ROW_BATCH)
+
+
 def reference_points(couples: ReceiverLight) -> np.ndarray:
     """A generic interior point R of each couple's clipped light, (Nc, 2) in the light's (u, v)."""
     width = couples.uv.shape[1]
@@ -662,12 +697,14 @@ def _directions_to_uv(couples: ReceiverLight, frames: LightFrames, couple: np.nd
 
 
 def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, couples: ReceiverLight,
-                      couple_pixel: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
+                      couple_pixel: np.ndarray, row_batch: int = ROW_BATCH
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
     """The visible region of each couple of a batch as signed triangles in its light's plane.
 
     Parameters
     ----------
-    surface : SurfacePoints of the batch; couples, couple_pixel : its lit couples (``couples_for``).
+    surface : SurfacePoints of the batch; couples, couple_pixel : its lit couples (``couples_for``);
+    row_batch : rows per arc-test batch (``row_batch_for``).
 
     Returns
     -------
@@ -684,6 +721,7 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
     own = surface.index_triangle[couple_pixel]
     light_dirs = couples.directions(frames)
     cone, cone_valid = cone_of_light(light_dirs, couples.count)
+    bound = bounding_cone(couples, frames)
     reference_uv = reference_points(couples)
     reference = couples.directions(frames, reference_uv[:, None, :], np.arange(n_couples))[:, 0]
 
@@ -696,7 +734,9 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
     n_lights = len(frames)
     group = group_of_pixel[couple_pixel]
     query_key = group * n_lights + couples.light
-    by_query = np.argsort(query_key, kind="stable")
+    morton_rank = np.empty(len(surface), np.int64)
+    morton_rank[order] = np.arange(len(order))
+    by_query = np.lexsort((morton_rank[couple_pixel], query_key))
     keys, query_first, query_size = np.unique(query_key[by_query], return_index=True, return_counts=True)
     group_low = np.full((n_groups, 3), np.inf)
     group_high = np.full((n_groups, 3), -np.inf)
@@ -713,22 +753,41 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
     pair_query, pair_record = candidate_edges(edges, frames, group_low, group_high, query_group, query_light,
                                               query_side, query_height)
 
-    # Rows (couple, record): every couple of a query with every candidate of the query, in batches.
+    # Sub-groups: SUB_POINTS consecutive couples (Morton order) of a query, each with its own box, so
+    # that a candidate of the group is tested only at the receivers near which it may be a silhouette.
+    rank_in_query = np.arange(n_couples) - np.repeat(query_first, query_size)
+    unit_count = -(-query_size // SUB_POINTS)
+    unit_first = np.cumsum(unit_count) - unit_count
+    unit_of = np.repeat(unit_first, query_size) + rank_in_query // SUB_POINTS   # per entry of by_query
+    n_units = int(unit_count.sum())
+    unit_size = np.bincount(unit_of, minlength=n_units)
+    unit_start = np.cumsum(unit_size) - unit_size
+    unit_low = np.full((n_units, 3), np.inf)
+    unit_high = np.full((n_units, 3), -np.inf)
+    np.minimum.at(unit_low, unit_of, position[by_query])
+    np.maximum.at(unit_high, unit_of, position[by_query])
+
+    # Rows (couple, record): the couples of each sub-group where a candidate may be a silhouette, batched.
     per_pair = query_size[pair_query]
     arcs = []
     bounds = np.concatenate([[0], np.cumsum(per_pair)])
-    cuts = np.unique(np.minimum(np.searchsorted(bounds, np.arange(0, bounds[-1] + ROW_BATCH, ROW_BATCH)),
+    cuts = np.unique(np.minimum(np.searchsorted(bounds, np.arange(0, bounds[-1] + row_batch, row_batch)),
                                 len(per_pair)))
     for lo, hi in zip(cuts[:-1], cuts[1:]):  # batches of rows
         if hi <= lo:
             continue
-        size = per_pair[lo:hi]
-        pair = np.repeat(np.arange(lo, hi), size)
-        offset = np.arange(len(pair)) - np.repeat(np.cumsum(size) - size, size)
-        couple = by_query[query_first[pair_query[pair]] + offset]
+        units = unit_count[pair_query[lo:hi]]
+        pair = np.repeat(np.arange(lo, hi), units)
+        unit = unit_first[pair_query[pair]] + np.arange(len(pair)) - np.repeat(np.cumsum(units) - units, units)
+        near = _may_be_silhouette(edges, pair_record[pair], unit_low[unit], unit_high[unit])
+        pair, unit = pair[near], unit[near]
+        size = unit_size[unit]
+        row_unit = np.repeat(unit, size)
+        offset = np.arange(len(row_unit)) - np.repeat(np.cumsum(size) - size, size)
+        couple = by_query[unit_start[row_unit] + offset]
         stats["edge_tests"] += len(couple)
-        arcs.append(couple_arcs(edges, frames, couples, position, own, cone, cone_valid, reference, couple,
-                                pair_record[pair]))
+        arcs.append(couple_arcs(edges, frames, couples, position, own, cone, cone_valid, bound, reference,
+                                couple, pair_record[np.repeat(pair, size)], stats))
     arcs = Arcs.concat(arcs) if arcs else Arcs.empty()
     arcs = arcs.take(np.argsort(arcs.couple, kind="stable"))
     stats["arcs"] = len(arcs.couple)
