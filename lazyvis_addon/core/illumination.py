@@ -10,6 +10,7 @@ polygon formula) or by Monte Carlo over their solid angle.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -366,7 +367,7 @@ def _concat_pieces(*parts):
 # so that outgoing radiance = albedo / pi * sum over lights of radiance * F.
 # ------------------------------------------------------------------------------------------------------
 
-def analytic(pieces: VisiblePieces, surface: SurfacePoints, frames: LightFrames) -> np.ndarray:
+def analytic(pieces: VisiblePieces, surface: SurfacePoints, frames: LightFrames, clamp: bool = True) -> np.ndarray:
     """Lambert's polygon formula over every visible piece (exact when no blocker was missed).
 
     Evaluated in each light's own frame, where a piece vertex seen from the receiver is simply
@@ -386,9 +387,10 @@ def analytic(pieces: VisiblePieces, surface: SurfacePoints, frames: LightFrames)
     per_piece = projected_solid_angle(directions, normal_local[pieces.couple])
     if pieces.sign is None:
         return np.bincount(pieces.couple, weights=per_piece, minlength=len(pieces.couple_pixel))
-    # Signed terms: rounding can leave a fully hidden light a hair below zero.
-    return np.maximum(np.bincount(pieces.couple, weights=per_piece * pieces.sign,
-                                  minlength=len(pieces.couple_pixel)), 0.0)
+    # Signed terms: rounding can leave a fully hidden light a hair below zero (``clamp`` False: a part of
+    # the terms, summed with others before clamping).
+    total = np.bincount(pieces.couple, weights=per_piece * pieces.sign, minlength=len(pieces.couple_pixel))
+    return np.maximum(total, 0.0) if clamp else total
 
 
 def sample_visible(pieces: VisiblePieces, frames: LightFrames, samples: int, couples_wanted: np.ndarray,
@@ -549,7 +551,8 @@ def _lands_in_pieces(pieces: VisiblePieces, frames: LightFrames, couple: np.ndar
     return landed & reaches
 
 
-def glossy_analytic(pieces: VisiblePieces, frames: LightFrames, bsdf: SurfaceBsdf, method: str) -> np.ndarray:
+def glossy_analytic(pieces: VisiblePieces, frames: LightFrames, bsdf: SurfaceBsdf, method: str,
+                    clamp: bool = True) -> np.ndarray:
     """∫ f_glossy cos θ_i over each couple's visible pieces by an analytic lobe, (Nc, 3).
 
     ``method`` "ltc": per piece, the share of the GGX lobe it holds by linearly transformed cosines (Heitz et
@@ -585,26 +588,47 @@ def glossy_analytic(pieces: VisiblePieces, frames: LightFrames, bsdf: SurfaceBsd
         per_piece = per_piece * pieces.sign[lobed][:, None]
     for channel in range(3):  # colour channels
         weights[:, channel] = np.bincount(couple, weights=per_piece[:, channel], minlength=n_couples)
-    return weights if pieces.sign is None else np.maximum(weights, 0.0)
+    return weights if pieces.sign is None or not clamp else np.maximum(weights, 0.0)
 
 
 def couple_weights(pieces: VisiblePieces, surface: SurfacePoints, frames: LightFrames, bsdf: SurfaceBsdf,
-                   settings: Settings, pixel_global: np.ndarray) -> np.ndarray:
+                   settings: Settings, pixel_global: np.ndarray, more: VisiblePieces | None = None,
+                   clamp: bool = True) -> np.ndarray:
     """∫ f cos θ_i dω_i over each couple's visible pieces, (Nc, 3): what multiplies the light's radiance.
 
     ``settings.integrator`` "reduced_mc" samples the whole BSDF; otherwise the diffuse lobe is exact
-    (Lambert's formula) and the GGX lobes follow ``settings.glossy_integrator``.
+    (Lambert's formula) and the GGX lobes follow ``settings.glossy_integrator``. ``more``: further signed
+    terms of the same couples (pieces of another width, as the silhouettes' whole lights beside their fan
+    triangles): the integrals add, and the mirror test sees both sets at once.
     """
+    if more is not None:
+        rough = _without_mirrors(bsdf)
+        total = np.maximum(couple_weights(pieces, surface, frames, rough, settings, pixel_global, clamp=False)
+                           + couple_weights(more, surface, frames, rough, settings, pixel_global, clamp=False), 0.0)
+        if bsdf.glossy.any():
+            uv, count, couple = _concat_pieces((pieces.uv, pieces.count, pieces.couple), (more.uv, more.count, more.couple))
+            both = VisiblePieces(pieces.couples, pieces.couple_pixel, uv, count, couple, pieces.max_rounds,
+                                 np.concatenate([pieces.sign, more.sign]))
+            total = total + mirror_weights(both, frames, bsdf)
+        return total
     mirror = mirror_weights(pieces, frames, bsdf) if bsdf.glossy.any() else 0.0
     if settings.integrator == "reduced_mc":
         return reduced_domain_mc(pieces, surface, frames, bsdf, settings, pixel_global) + mirror
-    projected = analytic(pieces, surface, frames)
+    projected = analytic(pieces, surface, frames, clamp)
     weights = projected[:, None] * bsdf.diffuse[pieces.couple_pixel] / np.pi + mirror
     if not bsdf.glossy.any():
         return weights
     if settings.glossy_integrator == "mc":
         return weights + reduced_domain_mc(pieces, surface, frames, bsdf, settings, pixel_global, glossy_only=True)
-    return weights + glossy_analytic(pieces, frames, bsdf, settings.glossy_integrator)
+    return weights + glossy_analytic(pieces, frames, bsdf, settings.glossy_integrator, clamp)
+
+
+def _without_mirrors(bsdf: SurfaceBsdf) -> SurfaceBsdf:
+    """The BSDF with its mirror-smooth lobes set aside (``mirror_weights`` takes them)."""
+    smooth = bsdf.glossy & (alpha_from_roughness(bsdf.roughness) ** 2 <= ROUGHNESS_SQ_THRESHOLD)
+    if not smooth.any():
+        return bsdf
+    return dataclasses.replace(bsdf, glossy=bsdf.glossy & ~smooth)
 
 
 def mirror_weights(pieces: VisiblePieces, frames: LightFrames, bsdf: SurfaceBsdf) -> np.ndarray:

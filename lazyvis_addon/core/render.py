@@ -278,14 +278,17 @@ def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: Bloc
             for lights in groups:  # lights of similar polygon size: a handful of groups
                 couples, couple_pixel = couples_for(part, frames, np.broadcast_to(~lights[None, :],
                                                                                   (len(part), len(frames))))
-                uv, couple, sign, hidden, found_stats = silhouette_pieces(part, frames, edges, tracer, couples,
-                                                                          couple_pixel, row_batch)
-                pieces = VisiblePieces(couples, couple_pixel, uv, np.full(len(couple), 3, np.int64), couple,
-                                       found_stats["max_arcs_per_couple"], sign)
-                weights = couple_weights(pieces, part, frames, bsdf, settings, globals_)
+                uv, couple, sign, whole, hidden, found_stats = silhouette_pieces(part, frames, edges, tracer,
+                                                                                 couples, couple_pixel, row_batch)
+                rounds_here = found_stats["max_arcs_per_couple"]
+                fans = VisiblePieces(couples, couple_pixel, uv, np.full(len(couple), 3, np.int64), couple,
+                                     rounds_here, sign)
+                lights_whole = VisiblePieces(couples, couple_pixel, couples.uv[whole], couples.count[whole], whole,
+                                             rounds_here, np.ones(len(whole)))
+                weights = couple_weights(fans, part, frames, bsdf, settings, globals_, more=lights_whole)
                 result += reflected_radiance(stop - start, frames, couples, couple_pixel, weights)
-                n_pieces += len(couple)
-                rounds = max(rounds, pieces.max_rounds)
+                n_pieces += len(couple) + len(whole)
+                rounds = max(rounds, rounds_here)
                 extra["umbra"][couple_pixel[hidden], couples.light[hidden]] = True
                 extra["arcs_per_pixel"] += np.bincount(couple_pixel, weights=found_stats.pop("arcs_of_couple"),
                                                        minlength=stop - start).astype(np.int64)

@@ -494,37 +494,58 @@ def cone_of_light(directions: np.ndarray, count: np.ndarray) -> tuple[np.ndarray
 # The arrangement
 # ------------------------------------------------------------------------------------------------------
 
-def _within(point: np.ndarray, start: np.ndarray, end: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    """(N,) bool: ``point`` (on the great circle of the arc start -> end, plane ``normal``) lies on the arc."""
-    return (np.einsum("nk,nk->n", cross3(start, point), normal) > 0) & \
-        (np.einsum("nk,nk->n", cross3(point, end), normal) > 0)
+def _within(point: np.ndarray, start: np.ndarray, end: np.ndarray, normal: np.ndarray, slack: float = 0.0
+            ) -> np.ndarray:
+    """(N,) bool: ``point`` (on the great circle of the arc start -> end, plane ``normal``) lies on the arc,
+    the arc grown at both ends by ``slack`` (radians, about)."""
+    if slack == 0.0:
+        return (np.einsum("nk,nk->n", cross3(start, point), normal) > 0) & \
+            (np.einsum("nk,nk->n", cross3(point, end), normal) > 0)
+    size = np.linalg.norm(point, axis=1) * np.linalg.norm(normal, axis=1)
+    return (np.einsum("nk,nk->n", cross3(start, point), normal) > -slack * size * np.linalg.norm(start, axis=1)) & \
+        (np.einsum("nk,nk->n", cross3(point, end), normal) > -slack * size * np.linalg.norm(end, axis=1))
 
 
-def _crossing_params(start, end, arc_start, arc_end, arc_normal):
-    """Where segments start -> end (N, 3) cross the arcs (N, 3 each): parameter along the segment (N,),
-    NaN where they do not cross."""
-    va = np.einsum("nk,nk->n", arc_normal, start)
-    vb = np.einsum("nk,nk->n", arc_normal, end)
-    straddles = ((va < 0) & (vb > 0)) | ((va > 0) & (vb < 0))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.where(straddles, va / (va - vb), 0.0)
-    point = start + t[:, None] * (end - start)
-    crosses = straddles & _within(point, arc_start, arc_end, arc_normal)
-    return np.where(crosses, t, np.nan)
+# Where pieces are split, arcs count as a little longer than they are: an arc that ends on another arc
+# or on the light's edge (a silhouette chain running into the receiver's own face, which lies in the
+# horizon that clipped the light) must split it there. A split where no arc reaches is harmless: both
+# parts are classified by their own depths.
+SPLIT_SLACK = 1e-9
 
 
-def _ragged_pairs(group: np.ndarray, n_groups: int, other_start: np.ndarray, other_count: np.ndarray
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """For items with ``group`` (N,), every (item, other) pair with the other items of its group, where
-    group g's others are other_start[g] .. other_start[g] + other_count[g] - 1."""
+def _pair_batches(group: np.ndarray, other_start: np.ndarray, other_count: np.ndarray, batch: int):
+    """(item, other) pairs of items with ``group`` (N,) and the others of their group (group g's others
+    are other_start[g] .. other_start[g] + other_count[g] - 1), yielded in batches of about ``batch``."""
     count = other_count[group]
-    item = np.repeat(np.arange(len(group)), count)
-    offset = np.arange(len(item)) - np.repeat(np.cumsum(count) - count, count)
-    return item, other_start[group][item] + offset
+    bounds = np.concatenate([[0], np.cumsum(count)])
+    cuts = np.unique(np.minimum(np.searchsorted(bounds, np.arange(0, bounds[-1] + batch, batch)), len(count)))
+    for lo, hi in zip(cuts[:-1], cuts[1:]):  # batches of pairs
+        size = count[lo:hi]
+        item = np.repeat(np.arange(lo, hi), size)
+        offset = np.arange(len(item)) - np.repeat(np.cumsum(size) - size, size)
+        yield item, other_start[group[item]] + offset
+
+
+def _straddles(va: np.ndarray, vb: np.ndarray) -> np.ndarray:
+    return ((va < 0) & (vb > 0)) | ((va > 0) & (vb < 0))
+
+
+def _split_pieces(carrier: np.ndarray, split_t: np.ndarray, low: np.ndarray, high: np.ndarray):
+    """Pieces of carriers (segments) cut at parameters ``split_t`` (with carrier ``carrier``), each carrier
+    c running from low[c] to high[c]: (carrier, t0, t1) of every piece longer than rounding."""
+    n = len(low)
+    carrier = np.concatenate([carrier, np.arange(n), np.arange(n)])
+    split_t = np.concatenate([split_t, low, high])
+    order = np.lexsort((split_t, carrier))
+    carrier, split_t = carrier[order], split_t[order]
+    same = carrier[1:] == carrier[:-1]
+    piece, t0, t1 = carrier[:-1][same], split_t[:-1][same], split_t[1:][same]
+    long_enough = t1 > t0 + 1e-14
+    return piece[long_enough], t0[long_enough], t1[long_enough]
 
 
 def visible_fans(arcs: Arcs, light_dirs: np.ndarray, light_count: np.ndarray, reference: np.ndarray,
-                 depth: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+                 depth: np.ndarray, pair_batch: int = PAIR_BATCH):
     """The visible region of each couple as signed triangles (R, p, q) of directions.
 
     Parameters
@@ -534,31 +555,36 @@ def visible_fans(arcs: Arcs, light_dirs: np.ndarray, light_count: np.ndarray, re
 
     Returns
     -------
-    couple : (M,) int64, start, end : (M, 3) directions of each boundary piece, sign : (M,) float64,
-    inconsistent : couples whose D went negative (the reference depth was short; shifted up).
+    couple : (M,) int64, start, end : (M, 3) directions of each boundary piece, sign : (M,) float64;
+    whole : (Nc,) bool  the light polygon itself joins the couple's terms with sign +1 (then the pieces
+                        are the hidden region's boundary, subtracted: fewer than the visible light edges);
+    inconsistent : int  couples where D came out negative somewhere (rounding in nearly parallel arcs, or a
+                        short reference depth); D <= 0 counts as visible there.
+
+    Which side of an arc's plane a piece lies on is interpolated from its carrier's end values, which also
+    decided where the carrier was split, so the two decisions agree; splits take arcs a little longer
+    (``SPLIT_SLACK``), so that an arc ending on another splits it.
     """
     n_couples = len(depth)
     arcs_of = np.bincount(arcs.couple, minlength=n_couples)
     first_arc = np.cumsum(arcs_of) - arcs_of
-    # Silhouette pieces: each arc split by the others inside its cone range.
-    item, other = _ragged_pairs(arcs.couple, n_couples, first_arc, arcs_of)
-    ok = item != other
-    item, other = item[ok], other[ok]
-    t = _crossing_params(arcs.start[item], arcs.end[item], arcs.start[other], arcs.end[other], arcs.normal[other])
-    inside = np.isfinite(t) & (t > arcs.enter[item]) & (t < arcs.leave[item])
-    split_arc = np.concatenate([item[inside], np.arange(len(arcs.couple)), np.arange(len(arcs.couple))])
-    split_t = np.concatenate([t[inside], arcs.enter, arcs.leave])
-    order = np.lexsort((split_t, split_arc))
-    split_arc, split_t = split_arc[order], split_t[order]
-    same = split_arc[1:] == split_arc[:-1]
-    piece_arc = split_arc[:-1][same]
-    t0, t1 = split_t[:-1][same], split_t[1:][same]
-    long_enough = t1 > t0 + 1e-14
-    piece_arc, t0, t1 = piece_arc[long_enough], t0[long_enough], t1[long_enough]
-    seg = arcs.end[piece_arc] - arcs.start[piece_arc]
-    p_start = arcs.start[piece_arc] + t0[:, None] * seg
-    p_end = arcs.start[piece_arc] + t1[:, None] * seg
-    p_couple = arcs.couple[piece_arc]
+    # Arc pieces: each arc split where another crosses it, inside its cone range.
+    split_arc, split_t = [], []
+    for i, j in _pair_batches(arcs.couple, first_arc, arcs_of, pair_batch):
+        mine = i != j
+        i, j = i[mine], j[mine]
+        va = np.einsum("nk,nk->n", arcs.normal[j], arcs.start[i])
+        vb = np.einsum("nk,nk->n", arcs.normal[j], arcs.end[i])
+        straddle = _straddles(va, vb)
+        i, j, va, vb = i[straddle], j[straddle], va[straddle], vb[straddle]
+        t = va / (va - vb)
+        point = arcs.start[i] + t[:, None] * (arcs.end[i] - arcs.start[i])
+        cross = _within(point, arcs.start[j], arcs.end[j], arcs.normal[j], SPLIT_SLACK)
+        cross &= (t > arcs.enter[i]) & (t < arcs.leave[i])
+        split_arc.append(i[cross])
+        split_t.append(t[cross])
+    piece_arc, t0, t1 = _split_pieces(np.concatenate(split_arc) if split_arc else np.zeros(0, np.int64),
+                                      np.concatenate(split_t) if split_t else np.zeros(0), arcs.enter, arcs.leave)
     # Light edge pieces: each edge of the light split by the arcs.
     width = light_dirs.shape[1]
     edge_couple = np.repeat(np.arange(n_couples), width)
@@ -567,54 +593,69 @@ def visible_fans(arcs: Arcs, light_dirs: np.ndarray, light_count: np.ndarray, re
     edge_couple, edge_k = edge_couple[real], edge_k[real]
     next_k = np.where(edge_k + 1 < light_count[edge_couple], edge_k + 1, 0)
     l_start, l_end = light_dirs[edge_couple, edge_k], light_dirs[edge_couple, next_k]
-    edge_index = np.arange(len(edge_couple))
-    e_item, e_arc = _ragged_pairs(edge_couple, n_couples, first_arc, arcs_of)
-    u = _crossing_params(l_start[e_item], l_end[e_item], arcs.start[e_arc], arcs.end[e_arc], arcs.normal[e_arc])
-    crossed = np.isfinite(u)
-    split_edge = np.concatenate([e_item[crossed], edge_index, edge_index])
-    split_u = np.concatenate([u[crossed], np.zeros(len(edge_index)), np.ones(len(edge_index))])
-    order = np.lexsort((split_u, split_edge))
-    split_edge, split_u = split_edge[order], split_u[order]
-    same = split_edge[1:] == split_edge[:-1]
-    lp_edge = split_edge[:-1][same]
-    u0, u1 = split_u[:-1][same], split_u[1:][same]
-    long_enough = u1 > u0 + 1e-14
-    lp_edge, u0, u1 = lp_edge[long_enough], u0[long_enough], u1[long_enough]
-    lseg = l_end[lp_edge] - l_start[lp_edge]
-    lp_start = l_start[lp_edge] + u0[:, None] * lseg
-    lp_end = l_start[lp_edge] + u1[:, None] * lseg
-    lp_couple = edge_couple[lp_edge]
-    # Depth at every piece, on the reference point's side: D(R) plus the jumps of the arcs that the arc
+    split_edge, split_u = [], []
+    for e, j in _pair_batches(edge_couple, first_arc, arcs_of, pair_batch):
+        va = np.einsum("nk,nk->n", arcs.normal[j], l_start[e])
+        vb = np.einsum("nk,nk->n", arcs.normal[j], l_end[e])
+        straddle = _straddles(va, vb)
+        e, j, va, vb = e[straddle], j[straddle], va[straddle], vb[straddle]
+        u = va / (va - vb)
+        point = l_start[e] + u[:, None] * (l_end[e] - l_start[e])
+        cross = _within(point, arcs.start[j], arcs.end[j], arcs.normal[j], SPLIT_SLACK)
+        split_edge.append(e[cross])
+        split_u.append(u[cross])
+    n_edges = len(edge_couple)
+    lp_edge, u0, u1 = _split_pieces(np.concatenate(split_edge) if split_edge else np.zeros(0, np.int64),
+                                    np.concatenate(split_u) if split_u else np.zeros(0), np.zeros(n_edges),
+                                    np.ones(n_edges))
+    # Every piece on its carrier segment: start, end, and the parameters of the piece's ends.
+    n_arc_pieces = len(piece_arc)
+    carrier_start = np.concatenate([arcs.start[piece_arc], l_start[lp_edge]])
+    carrier_end = np.concatenate([arcs.end[piece_arc], l_end[lp_edge]])
+    t0, t1 = np.concatenate([t0, u0]), np.concatenate([t1, u1])
+    piece_couple = np.concatenate([arcs.couple[piece_arc], edge_couple[lp_edge]])
+    piece_own = np.concatenate([piece_arc, np.full(len(lp_edge), -1)])
+    t_mid = 0.5 * (t0 + t1)
+    mid = carrier_start + t_mid[:, None] * (carrier_end - carrier_start)
+    # Depth on the reference point's side of each piece: D(R) plus the jumps of the arcs that the arc
     # from R to the piece's midpoint crosses (not the piece's own arc).
-    piece_couple = np.concatenate([p_couple, lp_couple])
-    piece_own = np.concatenate([piece_arc, np.full(len(lp_couple), -1)])
-    piece_mid = np.concatenate([p_start + p_end, lp_start + lp_end]) * 0.5
+    reference_value = np.einsum("nk,nk->n", arcs.normal, reference[arcs.couple])         # per arc
     d_near = depth[piece_couple].astype(np.int64)
-    q_item, q_arc = _ragged_pairs(piece_couple, n_couples, first_arc, arcs_of)
-    for lo in range(0, len(q_item), PAIR_BATCH):  # batches of (piece, arc) pairs
-        qi, qa = q_item[lo:lo + PAIR_BATCH], q_arc[lo:lo + PAIR_BATCH]
-        keep = qa != piece_own[qi]
-        qi, qa = qi[keep], qa[keep]
-        s = _crossing_params(reference[piece_couple[qi]], piece_mid[qi], arcs.start[qa], arcs.end[qa],
-                             arcs.normal[qa])
-        hit = np.isfinite(s)
-        d_near += np.bincount(qi[hit], weights=arcs.jump[qa[hit]], minlength=len(piece_couple)).astype(np.int64)
-    n_silhouette = len(p_couple)
+    for p, j in _pair_batches(piece_couple, first_arc, arcs_of, pair_batch):
+        keep = j != piece_own[p]
+        p, j = p[keep], j[keep]
+        va = np.einsum("nk,nk->n", arcs.normal[j], carrier_start[p])
+        vb = np.einsum("nk,nk->n", arcs.normal[j], carrier_end[p])
+        value = (1.0 - t_mid[p]) * va + t_mid[p] * vb
+        rv = reference_value[j]
+        straddle = _straddles(rv, value)
+        p, j, value, rv = p[straddle], j[straddle], value[straddle], rv[straddle]
+        s = rv / (rv - value)
+        origin = reference[piece_couple[p]]
+        point = origin + s[:, None] * (mid[p] - origin)
+        hit = _within(point, arcs.start[j], arcs.end[j], arcs.normal[j])
+        d_near += np.bincount(p[hit], weights=arcs.jump[j[hit]], minlength=len(piece_couple)).astype(np.int64)
     d_far = d_near.copy()
-    d_far[:n_silhouette] += arcs.jump[piece_arc]
-    # A short reference depth shows as D < 0 somewhere: lift the couple so that its least depth is 0.
+    d_far[:n_arc_pieces] += arcs.jump[piece_arc]
     low = np.zeros(n_couples, np.int64)
     np.minimum.at(low, piece_couple, np.minimum(d_near, d_far))
     inconsistent = int((low < 0).sum())
-    d_near -= low[piece_couple]
-    d_far -= low[piece_couple]
-    silhouette = np.arange(len(piece_couple)) < n_silhouette
-    bounds = np.where(silhouette, (d_near == 0) != (d_far == 0), d_near == 0)
-    sign = np.where(d_near == 0, 1.0, -1.0)
+    seen_near, seen_far = d_near <= 0, d_far <= 0
+    is_arc = np.arange(len(piece_couple)) < n_arc_pieces
+    # Per couple: the visible light edge pieces (+1), or the whole light and the hidden ones (-1),
+    # whichever is fewer.
+    light_piece = ~is_arc
+    visible_edges = np.bincount(piece_couple[light_piece & seen_near], minlength=n_couples)
+    hidden_edges = np.bincount(piece_couple[light_piece & ~seen_near], minlength=n_couples)
+    whole = (hidden_edges + 1 < visible_edges) & (arcs_of > 0)
+    whole_piece = whole[piece_couple]
+    bounds = np.where(is_arc, seen_near != seen_far, seen_near != whole_piece)
+    sign = np.where(is_arc, np.where(seen_near, 1.0, -1.0), np.where(whole_piece, -1.0, 1.0))
     rows = np.flatnonzero(bounds)
-    starts = np.concatenate([p_start, lp_start])
-    ends = np.concatenate([p_end, lp_end])
-    return piece_couple[rows], starts[rows], ends[rows], sign[rows], inconsistent
+    seg = carrier_end[rows] - carrier_start[rows]
+    start = carrier_start[rows] + t0[rows, None] * seg
+    end = carrier_start[rows] + t1[rows, None] * seg
+    return piece_couple[rows], start, end, sign[rows], whole, inconsistent
 
 
 # ------------------------------------------------------------------------------------------------------
@@ -709,6 +750,7 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
     Returns
     -------
     uv : (M, 3, 2) float64 triangles (R, p, q), couple : (M,) int64, sign : (M,) float64,
+    whole : (W,) int64    couples whose whole light polygon (``couples.uv``) is a further term, sign +1,
     hidden : (Nc,) bool   no part of the light is visible (umbra),
     stats : dict          edge candidates tested, arcs, reference depth rays, inconsistent couples.
     """
@@ -716,7 +758,7 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
     stats = {"edge_tests": 0, "arcs": 0, "depth_rays": 0, "inconsistent_couples": 0, "max_arcs_per_couple": 0}
     if n_couples == 0:
         stats["arcs_of_couple"] = np.zeros(0, np.int64)
-        return np.zeros((0, 3, 2)), np.zeros(0, np.int64), np.zeros(0), np.zeros(0, bool), stats
+        return np.zeros((0, 3, 2)), np.zeros(0, np.int64), np.zeros(0), np.zeros(0, np.int64), np.zeros(0, bool), stats
     position = surface.position[couple_pixel]
     own = surface.index_triangle[couple_pixel]
     light_dirs = couples.directions(frames)
@@ -809,24 +851,15 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
     renumber[busy] = np.arange(len(busy))
     sub = arcs.take(np.arange(len(arcs.couple)))
     sub.couple = renumber[arcs.couple]
-    piece_couple, p_start, p_end, sign, inconsistent = visible_fans(sub, light_dirs[busy], couples.count[busy],
-                                                                    reference[busy], depth[busy])
+    piece_couple, p_start, p_end, sign, whole, inconsistent = visible_fans(
+        sub, light_dirs[busy], couples.count[busy], reference[busy], depth[busy])
     stats["inconsistent_couples"] = inconsistent
     piece_couple = busy[piece_couple]
-    tri_uv = np.stack([np.broadcast_to(reference_uv[piece_couple], (len(piece_couple), 2)),
-                       _directions_to_uv(couples, frames, piece_couple, p_start),
-                       _directions_to_uv(couples, frames, piece_couple, p_end)], axis=1)
-    # Whole lights as fans from R too (one width for all pieces: triangles).
-    width = couples.uv.shape[1]
-    fan_couple = np.repeat(plain, width)
-    k = np.tile(np.arange(width), len(plain))
-    real = k < couples.count[fan_couple]
-    fan_couple, k = fan_couple[real], k[real]
-    k_next = np.where(k + 1 < couples.count[fan_couple], k + 1, 0)
-    fan_uv = np.stack([reference_uv[fan_couple], couples.uv[fan_couple, k], couples.uv[fan_couple, k_next]], axis=1)
-    uv = np.concatenate([tri_uv, fan_uv])
-    couple = np.concatenate([piece_couple, fan_couple])
-    sign = np.concatenate([sign, np.ones(len(fan_couple))])
+    whole_lights = np.sort(np.concatenate([plain, busy[whole]]))
+    uv = np.stack([np.broadcast_to(reference_uv[piece_couple], (len(piece_couple), 2)),
+                   _directions_to_uv(couples, frames, piece_couple, p_start),
+                   _directions_to_uv(couples, frames, piece_couple, p_end)], axis=1)
     visible = np.zeros(n_couples, bool)
-    visible[couple] = True
-    return uv, couple, sign, ~visible, stats
+    visible[piece_couple] = True
+    visible[whole_lights] = True
+    return uv, piece_couple, sign, whole_lights, ~visible, stats
