@@ -278,13 +278,14 @@ def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: Bloc
             for lights in groups:  # lights of similar polygon size: a handful of groups
                 couples, couple_pixel = couples_for(part, frames, np.broadcast_to(~lights[None, :],
                                                                                   (len(part), len(frames))))
-                uv, couple, sign, whole, hidden, found_stats = silhouette_pieces(part, frames, edges, tracer,
-                                                                                 couples, couple_pixel, row_batch)
+                uv, couple, sign, whole_terms, hidden, found_stats = silhouette_pieces(
+                    part, frames, edges, tracer, couples, couple_pixel, row_batch)
                 rounds_here = found_stats["max_arcs_per_couple"]
                 fans = VisiblePieces(couples, couple_pixel, uv, np.full(len(couple), 3, np.int64), couple,
                                      rounds_here, sign)
-                lights_whole = VisiblePieces(couples, couple_pixel, couples.uv[whole], couples.count[whole], whole,
-                                             rounds_here, np.ones(len(whole)))
+                whole, whole_uv, whole_count = whole_terms
+                lights_whole = VisiblePieces(couples, couple_pixel, whole_uv, whole_count, whole, rounds_here,
+                                             np.ones(len(whole)))
                 weights = couple_weights(fans, part, frames, bsdf, settings, globals_, more=lights_whole)
                 result += reflected_radiance(stop - start, frames, couples, couple_pixel, weights)
                 n_pieces += len(couple) + len(whole)

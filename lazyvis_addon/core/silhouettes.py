@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .blockers import _rank_within, _unique_points
-from .geometry import PLANE_EPS, LightFrames, ReceiverLight, cross3
+from .geometry import PLANE_EPS, LightFrames, ReceiverLight, clip_convex, cross3, trim
 
 # Edge records per leaf of the edge tree.
 LEAF_EDGES = 32
@@ -54,6 +54,11 @@ ROW_BYTES = 1024
 MIN_ROW_BATCH = 4096
 # Arc pairs per array batch of the arrangement.
 PAIR_BATCH = 1 << 20
+# A couple crossed by more arcs than this is cut into a grid of cells of about CELL_TARGET arcs each
+# (at most MAX_GRID x MAX_GRID): the arrangement costs the square of the arcs per region.
+CELL_ARCS = 48
+CELL_TARGET = 12
+MAX_GRID = 24
 # Hits a reference depth ray may count before it gives up (the scene is then assumed solid there).
 DEPTH_ROUNDS = 64
 # Relative tolerance of the sign tests (a third vertex this close to an arc's plane lies on it).
@@ -437,8 +442,16 @@ def couple_arcs(edges: MeshEdges, frames: LightFrames, couples: ReceiverLight, p
     rows = np.flatnonzero(near)
     couple, light, side, a, b, jump = couple[rows], light[rows], side[rows], a[rows], b[rows], jump[rows]
     normal = cross3(a, b)
-    # Range inside the cone: every cone plane's value, linear along the segment, must be >= 0.
-    planes, valid = cone[couple], cone_valid[couple]                          # (N, V, 3) unit, (N, V)
+    enter, leave, ok = _cone_range(a, b, normal, cone[couple], cone_valid[couple], -side[:, None] * frames.normal[light])
+    rows = np.flatnonzero(ok)
+    return Arcs(couple[rows], a[rows], b[rows], normal[rows], enter[rows], leave[rows], jump[rows])
+
+
+def _cone_range(a: np.ndarray, b: np.ndarray, normal: np.ndarray, planes: np.ndarray, valid: np.ndarray,
+                toward: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The parameter range (N,) enter .. leave of segments a -> b (N, 3) inside cones (unit inward planes
+    (N, V, 3), valid (N, V)) that open towards ``toward`` (N, 3), and whether a range of positive length
+    remains (N,) bool. ``normal``: a x b."""
     unit = normal / np.maximum(np.linalg.norm(normal, axis=1), 1e-300)[:, None]
     # An arc along the light's edge (an edge of the receiver's own face lies in the horizon that clipped
     # the light) never crosses the inside: its jump happens on the boundary.
@@ -452,12 +465,10 @@ def couple_arcs(edges: MeshEdges, frames: LightFrames, couples: ReceiverLight, p
     outside = (valid & (va <= 0) & (vb <= 0)).any(axis=1)
     # The segment must also point towards the light: a direction on the cone's far nappe passes every
     # plane test too.
-    toward = -side[:, None] * frames.normal[light]
     mid = a + 0.5 * (enter + leave)[:, None] * (b - a)
     ok = ~outside & ~on_boundary & (leave > enter + 1e-12) & (np.einsum("nk,nk->n", mid, toward) > 0)
     ok &= np.einsum("nk,nk->n", normal, normal) > 1e-30 * np.einsum("nk,nk->n", a, a) * np.einsum("nk,nk->n", b, b)
-    rows = np.flatnonzero(ok)
-    return Arcs(couple[rows], a[rows], b[rows], normal[rows], enter[rows], leave[rows], jump[rows])
+    return enter, leave, ok
 
 
 def bounding_cone(couples: ReceiverLight, frames: LightFrames) -> np.ndarray:
@@ -715,11 +726,11 @@ def row_batch_for(memory_budget_mb: float, threads: int) -> int:
     return min(rows, ROW_BATCH)
 
 
-def reference_points(couples: ReceiverLight) -> np.ndarray:
-    """A generic interior point R of each couple's clipped light, (Nc, 2) in the light's (u, v)."""
-    width = couples.uv.shape[1]
-    weight = np.where(np.arange(width)[None, :] < couples.count[:, None], _REFERENCE_WEIGHTS[:width][None, :], 0.0)
-    return np.einsum("nv,nvk->nk", weight, couples.uv) / weight.sum(axis=1)[:, None]
+def reference_points(uv: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """A generic interior point R of each convex polygon (N, V, 2) with ``count`` (N,) vertices, (N, 2)."""
+    width = uv.shape[1]
+    weight = np.where(np.arange(width)[None, :] < count[:, None], _REFERENCE_WEIGHTS[:width][None, :], 0.0)
+    return np.einsum("nv,nvk->nk", weight, uv) / np.maximum(weight.sum(axis=1), 1e-300)[:, None]
 
 
 def _directions_to_uv(couples: ReceiverLight, frames: LightFrames, couple: np.ndarray, direction: np.ndarray
@@ -750,7 +761,8 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
     Returns
     -------
     uv : (M, 3, 2) float64 triangles (R, p, q), couple : (M,) int64, sign : (M,) float64,
-    whole : (W,) int64    couples whose whole light polygon (``couples.uv``) is a further term, sign +1,
+    polygons : (couple (W,), uv (W, K, 2), count (W,))   further terms of sign +1: whole lights or cells
+                          (couples wholly visible, or whose hidden part the fans subtract),
     hidden : (Nc,) bool   no part of the light is visible (umbra),
     stats : dict          edge candidates tested, arcs, reference depth rays, inconsistent couples.
     """
@@ -758,13 +770,14 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
     stats = {"edge_tests": 0, "arcs": 0, "depth_rays": 0, "inconsistent_couples": 0, "max_arcs_per_couple": 0}
     if n_couples == 0:
         stats["arcs_of_couple"] = np.zeros(0, np.int64)
-        return np.zeros((0, 3, 2)), np.zeros(0, np.int64), np.zeros(0), np.zeros(0, np.int64), np.zeros(0, bool), stats
+        polygons = (np.zeros(0, np.int64), np.zeros((0, 3, 2)), np.zeros(0, np.int64))
+        return np.zeros((0, 3, 2)), np.zeros(0, np.int64), np.zeros(0), polygons, np.zeros(0, bool), stats
     position = surface.position[couple_pixel]
     own = surface.index_triangle[couple_pixel]
     light_dirs = couples.directions(frames)
     cone, cone_valid = cone_of_light(light_dirs, couples.count)
     bound = bounding_cone(couples, frames)
-    reference_uv = reference_points(couples)
+    reference_uv = reference_points(couples.uv, couples.count)
     reference = couples.directions(frames, reference_uv[:, None, :], np.arange(n_couples))[:, 0]
 
     # Groups of receivers near each other; one query per (group, light).
@@ -837,29 +850,131 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
     stats["max_arcs_per_couple"] = int(arcs_of.max()) if n_couples else 0
     stats["arcs_of_couple"] = arcs_of
 
-    # The reference depth: counted fully where arcs cross the light, hidden or not elsewhere.
-    origin = position + surface.offset[couple_pixel, None] * surface.geometric_normal[couple_pixel]
-    target = position + reference
-    depth = depth_counts(tracer, origin, target, own, arcs_of > 0)
-    stats["depth_rays"] = n_couples
+    # Regions: a couple's light, or, where many arcs cross it (foliage), the cells of a grid over it, so
+    # that the arrangement's cost (pairs of arcs) follows the arcs per cell.
+    heavy = np.flatnonzero(arcs_of > CELL_ARCS)
+    region_couple, region_uv, region_count, region_arcs, region_ref_uv = _regions(
+        couples, frames, arcs, arcs_of, heavy, reference, reference_uv)
+    stats["cells"] = int(len(region_couple) - (n_couples - len(heavy)))
+    region_dirs = couples.directions(frames, region_uv, region_couple)
+    region_ref = couples.directions(frames, region_ref_uv[:, None, :], region_couple)[:, 0]
+    region_arcs_of = np.bincount(region_arcs.couple, minlength=len(region_couple))
 
-    # Couples crossed by no arc are wholly visible or wholly hidden: their light polygon as it is.
-    crossed = arcs_of > 0
-    plain = np.flatnonzero(~crossed & (depth == 0))
+    # The reference depth: counted fully where arcs cross the region, hidden or not elsewhere.
+    origin = position[region_couple] + (surface.offset[couple_pixel] [:, None] * surface.geometric_normal[couple_pixel]
+                                        )[region_couple]
+    depth = depth_counts(tracer, origin, position[region_couple] + region_ref, own[region_couple],
+                         region_arcs_of > 0)
+    stats["depth_rays"] = len(region_couple)
+
+    # Regions crossed by no arc are wholly visible or wholly hidden: their polygon as it is.
+    crossed = region_arcs_of > 0
+    plain = np.flatnonzero(~crossed & (depth == 0) & (region_count >= 3))
     busy = np.flatnonzero(crossed)
-    renumber = np.full(n_couples, -1, np.int64)
+    renumber = np.full(len(region_couple), -1, np.int64)
     renumber[busy] = np.arange(len(busy))
-    sub = arcs.take(np.arange(len(arcs.couple)))
-    sub.couple = renumber[arcs.couple]
-    piece_couple, p_start, p_end, sign, whole, inconsistent = visible_fans(
-        sub, light_dirs[busy], couples.count[busy], reference[busy], depth[busy])
+    sub = region_arcs.take(np.arange(len(region_arcs.couple)))
+    sub.couple = renumber[region_arcs.couple]
+    piece_region, p_start, p_end, sign, whole, inconsistent = visible_fans(
+        sub, region_dirs[busy], region_count[busy], region_ref[busy], depth[busy])
     stats["inconsistent_couples"] = inconsistent
-    piece_couple = busy[piece_couple]
-    whole_lights = np.sort(np.concatenate([plain, busy[whole]]))
-    uv = np.stack([np.broadcast_to(reference_uv[piece_couple], (len(piece_couple), 2)),
+    piece_region = busy[piece_region]
+    piece_couple = region_couple[piece_region]
+    whole_regions = np.concatenate([plain, busy[whole]])
+    uv = np.stack([region_ref_uv[piece_region],
                    _directions_to_uv(couples, frames, piece_couple, p_start),
                    _directions_to_uv(couples, frames, piece_couple, p_end)], axis=1)
     visible = np.zeros(n_couples, bool)
     visible[piece_couple] = True
-    visible[whole_lights] = True
-    return uv, piece_couple, sign, whole_lights, ~visible, stats
+    visible[region_couple[whole_regions]] = True
+    polygons = (region_couple[whole_regions], trim(region_uv[whole_regions], region_count[whole_regions]),
+                region_count[whole_regions])
+    return uv, piece_couple, sign, polygons, ~visible, stats
+
+
+def _regions(couples: ReceiverLight, frames: LightFrames, arcs: Arcs, arcs_of: np.ndarray, heavy: np.ndarray,
+             reference: np.ndarray, reference_uv: np.ndarray):
+    """Each couple's light as one region, except the ``heavy`` couples', cut into a grid of cells (about
+    CELL_TARGET arcs each). Returns region_couple (R,), region_uv (R, W, 2), region_count (R,), the arcs
+    per region (``Arcs`` whose ``couple`` is the region, sorted, jumps relative to each region's reference
+    point) and the regions' reference points (R, 2)."""
+    n_couples = len(couples.count)
+    light_couples = np.setdiff1d(np.arange(n_couples), heavy)
+    region_of_couple = np.full(n_couples, -1, np.int64)
+    region_of_couple[light_couples] = np.arange(len(light_couples))
+    kept = arcs.take(np.flatnonzero(region_of_couple[arcs.couple] >= 0))
+    kept.couple = region_of_couple[kept.couple]
+    if len(heavy) == 0:
+        return light_couples, couples.uv[light_couples], couples.count[light_couples], kept, reference_uv[light_couples]
+    # Cells: a g x g grid over the (u, v) box of each heavy light, each the light clipped to its square.
+    grid = np.minimum(np.ceil(np.sqrt(arcs_of[heavy] / CELL_TARGET)), MAX_GRID).astype(np.int64)
+    uv, count = couples.uv[heavy], couples.count[heavy]
+    real = np.arange(uv.shape[1])[None, :] < count[:, None]
+    low = np.stack([np.where(real, uv[..., axis], np.inf).min(axis=1) for axis in range(2)], axis=1)
+    high = np.stack([np.where(real, uv[..., axis], -np.inf).max(axis=1) for axis in range(2)], axis=1)
+    step = (high - low) / grid[:, None]
+    n_cells = grid * grid
+    cell_first = np.cumsum(n_cells) - n_cells
+    owner = np.repeat(np.arange(len(heavy)), n_cells)
+    cell = np.arange(int(n_cells.sum())) - cell_first[owner]
+    cell_i, cell_j = cell // grid[owner], cell % grid[owner]
+    polygon, polygon_count = uv[owner], count[owner]
+    for axis, index, upper in ((0, cell_i, False), (0, cell_i + 1, True), (1, cell_j, False), (1, cell_j + 1, True)):
+        bound = low[owner, axis] + index * step[owner, axis]  # four sides of a cell
+        side = polygon[..., axis] - bound[:, None]
+        polygon, polygon_count = clip_convex(polygon, polygon_count, -side if upper else side)
+        polygon = trim(polygon, polygon_count)
+    nonempty = polygon_count >= 3
+    cell_region = np.full(len(owner), -1, np.int64)
+    cell_region[nonempty] = len(light_couples) + np.arange(int(nonempty.sum()))
+    cell_couple = heavy[owner[nonempty]]
+    # The heavy couples' arcs go to the cells their (u, v) extent meets, clipped to each cell's cone.
+    heavy_index = np.full(n_couples, -1, np.int64)
+    heavy_index[heavy] = np.arange(len(heavy))
+    moved = arcs.take(np.flatnonzero(heavy_index[arcs.couple] >= 0))
+    h = heavy_index[moved.couple]
+    seg = moved.end - moved.start
+    ends = np.stack([moved.start + moved.enter[:, None] * seg, moved.start + moved.leave[:, None] * seg], axis=1)
+    ends_uv = _directions_to_uv(couples, frames, moved.couple, ends)                    # (S, 2, 2)
+    g = grid[h]
+    span = np.clip(np.floor((ends_uv - low[h][:, None]) / np.maximum(step[h], 1e-300)[:, None]), 0,
+                   (g - 1)[:, None, None]).astype(np.int64)
+    i0, i1 = span[:, :, 0].min(axis=1), span[:, :, 0].max(axis=1)
+    j0, j1 = span[:, :, 1].min(axis=1), span[:, :, 1].max(axis=1)
+    per = (i1 - i0 + 1) * (j1 - j0 + 1)
+    arc = np.repeat(np.arange(len(h)), per)
+    k = np.arange(len(arc)) - np.repeat(np.cumsum(per) - per, per)
+    width_j = (j1 - j0 + 1)[arc]
+    ci, cj = i0[arc] + k // width_j, j0[arc] + k % width_j
+    region = cell_region[cell_first[h[arc]] + ci * g[arc] + cj]
+    arc, region = arc[region >= 0], region[region >= 0]
+    cell_uv = polygon[nonempty]
+    cell_count = polygon_count[nonempty]
+    cell_ref_uv = reference_points(cell_uv, cell_count)
+    local = region - len(light_couples)
+    cell_dirs = couples.directions(frames, cell_uv, cell_couple)
+    planes, valid = cone_of_light(cell_dirs[local], cell_count[local])
+    light = couples.light[moved.couple[arc]]
+    toward = -couples.side[moved.couple[arc]][:, None] * frames.normal[light]
+    enter, leave, ok = _cone_range(moved.start[arc], moved.end[arc], moved.normal[arc], planes, valid, toward)
+    arc, region, enter, leave, local = arc[ok], region[ok], enter[ok], leave[ok], local[ok]
+    # Jumps were taken relative to the couple's reference point; the cell's may lie on the other side.
+    cell_ref = couples.directions(frames, cell_ref_uv[local][:, None, :], cell_couple[local])[:, 0]
+    side_couple = np.einsum("nk,nk->n", moved.normal[arc], reference[moved.couple[arc]]) >= 0
+    side_cell = np.einsum("nk,nk->n", moved.normal[arc], cell_ref) >= 0
+    jump = np.where(side_couple == side_cell, moved.jump[arc], -moved.jump[arc])
+    in_cells = Arcs(region, moved.start[arc], moved.end[arc], moved.normal[arc], enter, leave, jump)
+    region_arcs = Arcs.concat([kept, in_cells])
+    region_arcs = region_arcs.take(np.argsort(region_arcs.couple, kind="stable"))
+    width = max(couples.uv.shape[1], cell_uv.shape[1])
+    region_uv = np.concatenate([_pad_columns(couples.uv[light_couples], width), _pad_columns(cell_uv, width)])
+    return (np.concatenate([light_couples, cell_couple]), region_uv,
+            np.concatenate([couples.count[light_couples], cell_count]), region_arcs,
+            np.concatenate([reference_uv[light_couples], cell_ref_uv]))
+
+
+def _pad_columns(points: np.ndarray, width: int) -> np.ndarray:
+    """Pad (N, K, D) polygons to K = width by repeating the last column."""
+    if points.shape[1] >= width:
+        return points
+    return np.concatenate([points, np.repeat(points[:, -1:], width - points.shape[1], axis=1)], axis=1)
