@@ -247,7 +247,7 @@ def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: Bloc
     stats = {"pieces": 0, "max_blockers_per_couple": 0, "verify_rays": 0}
     if edges is not None:
         stats.update(umbra=np.zeros((n_pixels, len(frames)), bool), arcs_per_pixel=np.zeros(n_pixels, np.int64),
-                     edge_tests=0, arcs=0, depth_rays=0, inconsistent_couples=0)
+                     edge_tests=0, arcs=0, depth_rays=0, inconsistent_couples=0, cells=0)
     empty = np.zeros(0, np.int64)
     if len(frames) == 0:
         return radiance, stats, (empty, empty, empty)
@@ -273,7 +273,7 @@ def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: Bloc
         n_pieces, rounds, verify_rays, found = 0, 0, 0, []
         local = None
         extra = {"umbra": np.zeros((stop - start, len(frames)), bool), "arcs_per_pixel": np.zeros(stop - start, np.int64),
-                 "edge_tests": 0, "arcs": 0, "depth_rays": 0, "inconsistent_couples": 0}
+                 "edge_tests": 0, "arcs": 0, "depth_rays": 0, "inconsistent_couples": 0, "cells": 0}
         if edges is not None:
             for lights in groups:  # lights of similar polygon size: a handful of groups
                 couples, couple_pixel = couples_for(part, frames, np.broadcast_to(~lights[None, :],
@@ -293,7 +293,7 @@ def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: Bloc
                 extra["umbra"][couple_pixel[hidden], couples.light[hidden]] = True
                 extra["arcs_per_pixel"] += np.bincount(couple_pixel, weights=found_stats.pop("arcs_of_couple"),
                                                        minlength=stop - start).astype(np.int64)
-                for name in ("edge_tests", "arcs", "depth_rays", "inconsistent_couples"):
+                for name in ("edge_tests", "arcs", "depth_rays", "inconsistent_couples", "cells"):
                     extra[name] += found_stats[name]
             return start, stop, result, n_pieces, rounds, (empty, empty, empty, 0), extra
         if settings.integrator != "standard_mc":
@@ -333,7 +333,7 @@ def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: Bloc
         if extra is not None:
             stats["umbra"][start:stop] = extra["umbra"]
             stats["arcs_per_pixel"][start:stop] = extra["arcs_per_pixel"]
-            for name in ("edge_tests", "arcs", "depth_rays", "inconsistent_couples"):
+            for name in ("edge_tests", "arcs", "depth_rays", "inconsistent_couples", "cells"):
                 stats[name] += extra[name]
         stats["pieces"] += n_pieces
         stats["max_blockers_per_couple"] = max(stats["max_blockers_per_couple"], rounds)

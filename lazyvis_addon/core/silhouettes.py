@@ -61,6 +61,8 @@ CELL_TARGET = 12
 MAX_GRID = 24
 # Hits a reference depth ray may count before it gives up (the scene is then assumed solid there).
 DEPTH_ROUNDS = 64
+# Vertices this close (relative to the scene's coordinates) are welded into one for the edge records.
+WELD_EPS = 1e-10
 # Relative tolerance of the sign tests (a third vertex this close to an arc's plane lies on it).
 SIGN_EPS = 1e-12
 
@@ -111,14 +113,27 @@ class MeshEdges:
         record with its triangles' third vertices, plus each light's cut segments."""
         triangles = np.asarray(triangles, np.float64)
         n = len(triangles)
-        positions, vertex_id = _unique_points(triangles.reshape(-1, 3))
+        points = triangles.reshape(-1, 3)
+        # Vertices within WELD_EPS of the scene's size are one: a seam whose two sides were computed apart
+        # (cos 2 pi is not 1) would leave two coincident boundary arcs of opposite jumps, which no sign
+        # test tells apart.
+        quantum = WELD_EPS * max(float(np.abs(points).max()) if len(points) else 1.0, 1e-300)
+        _, vertex_id = _unique_points(np.round(points / quantum))
+        positions = np.zeros((int(vertex_id.max()) + 1 if len(vertex_id) else 0, 3))
+        positions[vertex_id] = points
         vertex_id = vertex_id.reshape(n, 3)
+        # A face repeated (the same three vertices) blocks as one: the reference depth ray meets the copies
+        # at one distance and counts one, so the edges count one too.
+        corners = np.sort(vertex_id, axis=1)
+        _, first_copy = np.unique(corners, axis=0, return_index=True)
+        single = np.zeros(n, bool)
+        single[first_copy] = True
         # Half-edge k of a triangle joins corners k and k + 1; its third vertex is corner k + 2.
         first, second = vertex_id, np.roll(vertex_id, -1, axis=1)
         third = np.roll(triangles, -2, axis=1).reshape(-1, 3)
         low_id, high_id = np.minimum(first, second).ravel(), np.maximum(first, second).ravel()
         triangle = np.repeat(np.arange(n), 3)
-        keep = low_id != high_id  # a degenerate triangle's collapsed edge has no arc
+        keep = (low_id != high_id) & np.repeat(single, 3)  # a collapsed edge has no arc; copies add none
         low_id, high_id, third, triangle = low_id[keep], high_id[keep], third[keep], triangle[keep]
         key = low_id * max(len(positions), 1) + high_id
         _, edge_of = np.unique(key, return_inverse=True)
@@ -455,7 +470,7 @@ def _cone_range(a: np.ndarray, b: np.ndarray, normal: np.ndarray, planes: np.nda
     unit = normal / np.maximum(np.linalg.norm(normal, axis=1), 1e-300)[:, None]
     # An arc along the light's edge (an edge of the receiver's own face lies in the horizon that clipped
     # the light) never crosses the inside: its jump happens on the boundary.
-    on_boundary = (valid & (np.abs(np.einsum("nvk,nk->nv", planes, unit)) > 1.0 - 1e-9)).any(axis=1)
+    on_boundary = (valid & (np.abs(np.einsum("nvk,nk->nv", planes, unit)) > 1.0 - 1e-13)).any(axis=1)
     va = np.einsum("nvk,nk->nv", planes, a)
     vb = np.einsum("nvk,nk->nv", planes, b)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -521,7 +536,7 @@ def _within(point: np.ndarray, start: np.ndarray, end: np.ndarray, normal: np.nd
 # or on the light's edge (a silhouette chain running into the receiver's own face, which lies in the
 # horizon that clipped the light) must split it there. A split where no arc reaches is harmless: both
 # parts are classified by their own depths.
-SPLIT_SLACK = 1e-9
+SPLIT_SLACK = 1e-6
 
 
 def _pair_batches(group: np.ndarray, other_start: np.ndarray, other_count: np.ndarray, batch: int):

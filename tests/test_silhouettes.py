@@ -1,0 +1,149 @@
+"""Pass 2 by silhouettes (the default visibility): exact against the reference integrator on the geometry
+that leaks through the paper's blocker map (sub-pixel leaves, dense smooth meshes, foliage), on broken
+meshes, and unchanged by its batching and cells."""
+
+import numpy as np
+import pytest
+
+from lazyvis_addon.core import Settings, render
+from lazyvis_addon.core import silhouettes
+from lazyvis_addon.core.demo_scenes import box_triangles, plane_under_light, quad_triangles
+from lazyvis_addon.core.geometry import light_frames
+from lazyvis_addon.core.scene import Lights
+from lazyvis_addon.core.silhouettes import MeshEdges
+
+CENTRES = Settings(aa_samples=1)
+
+
+def uv_sphere(centre, radius, rings=12, segments=16) -> np.ndarray:
+    """A closed UV sphere (T, 3, 3), outward winding."""
+    theta = np.linspace(0.0, np.pi, rings + 1)
+    phi = np.linspace(0.0, 2.0 * np.pi, segments + 1)
+    grid = np.stack([np.sin(theta)[:, None] * np.cos(phi)[None], np.sin(theta)[:, None] * np.sin(phi)[None],
+                     np.broadcast_to(np.cos(theta)[:, None], (rings + 1, segments + 1))], axis=-1)
+    grid = np.asarray(centre) + radius * grid
+    a, b = grid[:-1, :-1].reshape(-1, 3), grid[1:, :-1].reshape(-1, 3)
+    c, d = grid[1:, 1:].reshape(-1, 3), grid[:-1, 1:].reshape(-1, 3)
+    triangles = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    area = np.linalg.norm(np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0]), axis=1)
+    return triangles[area > 1e-12]  # the poles' collapsed triangles
+
+
+def leaves(count, seed, centre=(0.0, 0.0, 0.5), spread=0.4, size=0.05) -> np.ndarray:
+    """``count`` separate small quads at random orientations (2 triangles each)."""
+    rng = np.random.default_rng(seed)
+    middle = np.asarray(centre) + rng.uniform(-spread, spread, (count, 3)) * (1.0, 1.0, 0.4)
+    axes = rng.normal(size=(count, 2, 3))
+    axes /= np.linalg.norm(axes, axis=2, keepdims=True)
+    u, v = axes[:, 0] * size / 2, axes[:, 1] * size / 4
+    corners = np.stack([middle - u - v, middle + u - v, middle + u + v, middle - u + v], axis=1)
+    return np.concatenate([corners[:, [0, 1, 2]], corners[:, [0, 2, 3]]])
+
+
+def exact(scene, settings=CENTRES):
+    """The default render and the reference integrator's, RGB. The reference clips triangle by triangle:
+    with merged quads it is 1.3e-4 off at one pixel of the sphere (measured), which the triangles and
+    the silhouettes (with and without cells) agree on to every digit."""
+    return (render(scene, settings).combined[..., :3],
+            render(scene, settings.replace(integrator="reference", merge_quads=False)).combined[..., :3])
+
+
+def assert_exact(image, reference):
+    np.testing.assert_allclose(image, reference, rtol=1e-6, atol=1e-7 * reference.max())
+
+
+def test_a_leaf_far_smaller_than_a_pixel_shadows_the_floor():
+    """A 2 cm leaf over a floor whose pixels are 25 cm wide (a twelfth of the footprint): no shadow ray of
+    the blocker map hits it, so the paper's method leaks its light; the silhouettes find it by the edge
+    tree, and the image is the reference integrator's."""
+    leaf = quad_triangles([(0.05, 0.05, 0.3), (0.07, 0.05, 0.3), (0.07, 0.07, 0.3), (0.05, 0.07, 0.3)])
+    scene = plane_under_light(resolution=16, blocker=leaf)
+    image, reference = exact(scene)
+    open_floor = render(plane_under_light(resolution=16), CENTRES).combined[..., :3]
+    assert (reference < open_floor - 1e-6).any(), "the leaf casts no shadow: the test proves nothing"
+    assert_exact(image, reference)
+    paper = render(scene, CENTRES.replace(visibility="blocker_map")).combined[..., :3]
+    assert np.abs(paper - reference).max() > 1e-4  # what the shadow rays missed
+
+
+def test_dense_sphere_over_a_floor_matches_the_reference():
+    """A smooth closed mesh: its silhouette arcs, not its 370 triangles, clip the light, and the floor's
+    penumbra and the sphere's own terminator are exact."""
+    scene = plane_under_light(resolution=20, light_size=1.2, height=1.4, blocker=uv_sphere((0.2, -0.1, 0.6), 0.35))
+    image, reference = exact(scene)
+    assert_exact(image, reference)
+    out = render(scene, CENTRES)
+    assert out.stats["arcs"] < 0.2 * out.stats["edge_tests"]  # most candidates are no silhouette
+    assert 0 < out.stats["max_blockers_per_couple"] < 40     # arcs per couple, of 370 triangles
+    assert (out.blocker_count > 0).any()
+
+
+@pytest.mark.parametrize("defect", ["non_manifold", "duplicate_faces", "flipped_normals", "zero_area"])
+def test_broken_meshes_render_exactly(defect):
+    """Edges shared by three faces, faces repeated, faces wound against their neighbours and faces of no
+    area: the depth jumps add up per face whatever the mesh's topology, so every case is exact."""
+    blocker = box_triangles((0.1, 0.0, 0.5), (0.5, 0.4, 0.2))
+    if defect == "non_manifold":  # a fin on one of the bottom face's edges, slanting out of the box
+        fin = np.array([[blocker[0, 0], blocker[0, 1], blocker[0, 0] + (-0.3, 0.0, 0.4)]])
+        blocker = np.concatenate([blocker, fin])
+    elif defect == "duplicate_faces":
+        blocker = np.concatenate([blocker, blocker[:4]])
+    elif defect == "flipped_normals":
+        blocker = blocker.copy()
+        blocker[::3] = blocker[::3, ::-1]
+    elif defect == "zero_area":
+        line = np.array([[(0.0, 0.0, 0.4), (0.3, 0.0, 0.4), (0.6, 0.0, 0.4)],
+                         [(0.2, 0.2, 0.45), (0.2, 0.2, 0.45), (0.4, 0.1, 0.45)]])
+        blocker = np.concatenate([blocker, line])
+    scene = plane_under_light(resolution=16, blocker=blocker)
+    image, reference = exact(scene)
+    assert_exact(image, reference)
+
+
+def test_stacked_plates_and_a_pole_through_the_lights_plane():
+    """Depth 2 under two overlapping plates (a region bounded only where both end), and a pole that
+    crosses the light's plane beside the light (its faces are clipped where they cross: cut segments)."""
+    plates = np.concatenate([quad_triangles([(-0.4, -0.4, 0.4), (0.1, -0.4, 0.4), (0.1, 0.1, 0.4), (-0.4, 0.1, 0.4)]),
+                             quad_triangles([(-0.2, -0.2, 0.6), (0.3, -0.2, 0.6), (0.3, 0.3, 0.6), (-0.2, 0.3, 0.6)])])
+    pole = box_triangles((0.62, 0.1, 1.0), (0.1, 0.1, 1.6))
+    scene = plane_under_light(resolution=18, blocker=np.concatenate([plates, pole]))
+    image, reference = exact(scene)
+    assert_exact(image, reference)
+    edges = MeshEdges.from_triangles(scene.triangles, light_frames(scene.validated().lights))
+    assert (edges.light >= 0).sum() == 8  # the pole's 8 side triangles cross the light's plane
+
+
+def test_foliage_cells_and_batches_change_nothing(monkeypatch):
+    """Many leaves over a floor: couples crossed by many arcs are cut into cells, each with its own
+    reference depth; cells, no cells and small arc-test batches give the same image, the reference's."""
+    scene = plane_under_light(resolution=12, blocker=leaves(150, seed=3))
+    image, reference = exact(scene)
+    assert_exact(image, reference)
+    out = render(scene, CENTRES)
+    assert out.stats["cells"] > 0
+    monkeypatch.setattr(silhouettes, "CELL_ARCS", 10 ** 9)
+    monkeypatch.setattr(silhouettes, "ROW_BATCH", silhouettes.MIN_ROW_BATCH)
+    whole = render(scene, CENTRES.replace(memory_budget_mb=64.0))
+    assert whole.stats["cells"] == 0
+    np.testing.assert_allclose(whole.combined, out.combined, rtol=1e-9, atol=1e-12)
+
+
+def test_two_sided_emitter_and_a_box_on_the_floor():
+    """A box standing on the floor (faces seen edge-on from the floor, the receiver's own plane) and a
+    two-sided light lighting both sides of a wall."""
+    box = box_triangles((0.2, 0.1, 0.25), (0.5, 0.3, 0.5))
+    scene = plane_under_light(resolution=16, blocker=box)
+    quad = np.array([(-0.6, -0.6, 1.0), (0.6, -0.6, 1.0), (0.6, 0.6, 1.0), (-0.6, 0.6, 1.0)])
+    scene.lights = Lights.from_polygons([quad], [(1.0, 1.0, 1.0)], two_sided=[True])
+    image, reference = exact(scene)
+    assert_exact(image, reference)
+
+
+def test_mesh_edges_pair_faces_and_keep_boundaries():
+    """A closed box: 18 edges with two faces each; an open quad: 4 boundary edges with one face and the
+    diagonal with two."""
+    box = MeshEdges.from_triangles(box_triangles((0, 0, 0), (1, 1, 1)))
+    assert len(box) == 18 and (box.triangle >= 0).all()
+    quad = MeshEdges.from_triangles(quad_triangles([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)]))
+    faces = (quad.triangle >= 0).sum(axis=1)
+    assert len(quad) == 5 and sorted(faces.tolist()) == [1, 1, 1, 1, 2]
