@@ -741,6 +741,43 @@ def row_batch_for(memory_budget_mb: float, threads: int) -> int:
     return min(rows, ROW_BATCH)
 
 
+# Vertex weights of the probe points (positive: inside the convex region), far from R's.
+_PROBE_WEIGHTS = (0.35, 0.6, 0.85, 0.2)
+
+
+def _probe_points(uv: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """Probe points (N, 2) inside convex polygons (N, V, 2): probe i of a run of len(_PROBE_WEIGHTS) leans
+    towards vertex i * count / len(_PROBE_WEIGHTS) of its polygon."""
+    n = len(count)
+    probe = np.arange(n) % len(_PROBE_WEIGHTS)
+    rows = np.arange(n)
+    corner = (probe * count) // len(_PROBE_WEIGHTS)
+    weight = np.asarray(_PROBE_WEIGHTS)[probe]
+    centre = reference_points(uv, count)
+    return (1.0 - weight)[:, None] * centre + weight[:, None] * uv[rows, corner]
+
+
+def _jumps_between(arcs: Arcs, reference: np.ndarray, region: np.ndarray, target: np.ndarray, n_regions: int,
+                   pair_batch: int = PAIR_BATCH) -> np.ndarray:
+    """D(target) - D(R) for directions ``target`` (N, 3) in ``region`` (N,): the jumps of the region's
+    arcs (``Arcs.couple`` = region, sorted) that the arc from R to the target crosses, (N,) int64."""
+    arcs_of = np.bincount(arcs.couple, minlength=n_regions)
+    first_arc = np.cumsum(arcs_of) - arcs_of
+    total = np.zeros(len(region), np.int64)
+    reference_value = np.einsum("nk,nk->n", arcs.normal, reference[arcs.couple])
+    for p, j in _pair_batches(region, first_arc, arcs_of, pair_batch):
+        rv = reference_value[j]
+        value = np.einsum("nk,nk->n", arcs.normal[j], target[p])
+        straddle = _straddles(rv, value)
+        p, j, rv, value = p[straddle], j[straddle], rv[straddle], value[straddle]
+        s = rv / (rv - value)
+        origin = reference[region[p]]
+        point = origin + s[:, None] * (target[p] - origin)
+        hit = _within(point, arcs.start[j], arcs.end[j], arcs.normal[j])
+        total += np.bincount(p[hit], weights=arcs.jump[j[hit]], minlength=len(region)).astype(np.int64)
+    return total
+
+
 def reference_points(uv: np.ndarray, count: np.ndarray) -> np.ndarray:
     """A generic interior point R of each convex polygon (N, V, 2) with ``count`` (N,) vertices, (N, 2)."""
     width = uv.shape[1]
@@ -782,7 +819,8 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
     stats : dict          edge candidates tested, arcs, reference depth rays, inconsistent couples.
     """
     n_couples = len(couple_pixel)
-    stats = {"edge_tests": 0, "arcs": 0, "depth_rays": 0, "inconsistent_couples": 0, "max_arcs_per_couple": 0}
+    stats = {"edge_tests": 0, "arcs": 0, "depth_rays": 0, "inconsistent_couples": 0, "max_arcs_per_couple": 0,
+             "cells": 0}
     if n_couples == 0:
         stats["arcs_of_couple"] = np.zeros(0, np.int64)
         polygons = (np.zeros(0, np.int64), np.zeros((0, 3, 2)), np.zeros(0, np.int64))
@@ -881,6 +919,19 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
     depth = depth_counts(tracer, origin, position[region_couple] + region_ref, own[region_couple],
                          region_arcs_of > 0)
     stats["depth_rays"] = len(region_couple)
+    # A ray can count too few layers (faces touching or overlapping where it passes, met at one
+    # distance), never too many: probe rays to other points of each crossed region, carried back to R
+    # across the arcs between, each give a lower bound of D(R); the largest is kept.
+    crossed_regions = np.flatnonzero(region_arcs_of > 0)
+    if len(crossed_regions):
+        probe_region = np.repeat(crossed_regions, len(_PROBE_WEIGHTS))
+        probe_uv = _probe_points(region_uv[probe_region], region_count[probe_region])
+        probe_dir = couples.directions(frames, probe_uv[:, None, :], region_couple[probe_region])[:, 0]
+        probe_depth = depth_counts(tracer, origin[probe_region], position[region_couple[probe_region]] + probe_dir,
+                                   own[region_couple[probe_region]], np.ones(len(probe_region), bool))
+        between = _jumps_between(region_arcs, region_ref, probe_region, probe_dir, len(region_couple))
+        np.maximum.at(depth, probe_region, probe_depth - between)
+        stats["depth_rays"] += len(probe_region)
 
     # Regions crossed by no arc are wholly visible or wholly hidden: their polygon as it is.
     crossed = region_arcs_of > 0

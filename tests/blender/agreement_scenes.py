@@ -77,18 +77,6 @@ def cycles_default_terminator_offset(scene) -> None:
             obj.shadow_terminator_geometry_offset = 0.1
 
 
-# Shadow rays (and verification rays) enough for the lazy blocker map of each sample scene to hold every
-# blocker at the tests' low resolution, so that the analytic integrator gives the reference integrator's
-# image (measured against Cycles; see test_cycles_agreement.py): 4 rays per pixel miss sub-pixel blockers.
-COMPLETE_BLOCKER_MAP = {
-    "floating_boxes": {"shadow_rays": 64, "verify_rays": 64},
-    "chapel": {"shadow_rays": 1024, "verify_rays": 0},
-    "suzanne": {"shadow_rays": 512, "verify_rays": 0},
-    "suzanne_48px": {"shadow_rays": 2048, "verify_rays": 0},  # fewer pixels to share blockers with
-    "textured": {"shadow_rays": 16, "verify_rays": 0},  # 4 rays miss slat faces seen edge-on
-}
-
-
 GLOSSY_ROUGHNESS = (0.1, 0.3, 0.5, 0.8)
 
 # Cycles' smallest filter width (pixels, a radius): every sample within 0.01 px of the pixel centre.
@@ -144,25 +132,22 @@ class Case:
 
 
 CASES = (
-    Case("floating_boxes", (96, 96), blend="sample_blends/floating_boxes.blend",
-         lazyvis=COMPLETE_BLOCKER_MAP["floating_boxes"]),
-    Case("chapel", (128, 96), blend="sample_blends/chapel.blend", lazyvis=COMPLETE_BLOCKER_MAP["chapel"],
+    Case("floating_boxes", (96, 96), blend="sample_blends/floating_boxes.blend"),
+    Case("chapel", (128, 96), blend="sample_blends/chapel.blend",
          samples_factor=4),
-    Case("suzanne", (96, 96), blend="sample_blends/suzanne.blend", lazyvis=COMPLETE_BLOCKER_MAP["suzanne"]),
+    Case("suzanne", (96, 96), blend="sample_blends/suzanne.blend"),
     Case("suzanne_terminator_offset", (48, 48), blend="sample_blends/suzanne.blend",
-         prepare=cycles_default_terminator_offset, lazyvis=COMPLETE_BLOCKER_MAP["suzanne_48px"]),
+         prepare=cycles_default_terminator_offset),
     Case("box_and_two_lights", (64, 48), build=box_and_two_lights, lazyvis={"disk_vertices": 64},
          reference_integrator=True),
     Case("emitter_panel", (64, 48), build=emitter_panel, reference_integrator=True),
-    Case("textured", (96, 96), blend="sample_blends/textured.blend", lazyvis=COMPLETE_BLOCKER_MAP["textured"]),
+    Case("textured", (96, 96), blend="sample_blends/textured.blend"),
     # Issue 5: Blender's default pixel filter, LazyVis anti-aliasing with its defaults.
-    Case("floating_boxes_filter1.5", (96, 96), blend="sample_blends/floating_boxes.blend",
-         lazyvis=COMPLETE_BLOCKER_MAP["floating_boxes"], filter_width=DEFAULT_FILTER),
-    Case("textured_filter1.5", (96, 96), blend="sample_blends/textured.blend",
-         lazyvis=COMPLETE_BLOCKER_MAP["textured"], filter_width=DEFAULT_FILTER),
-    Case("chapel_filter1.5", (128, 96), blend="sample_blends/chapel.blend", lazyvis=COMPLETE_BLOCKER_MAP["chapel"],
+    Case("floating_boxes_filter1.5", (96, 96), blend="sample_blends/floating_boxes.blend", filter_width=DEFAULT_FILTER),
+    Case("textured_filter1.5", (96, 96), blend="sample_blends/textured.blend", filter_width=DEFAULT_FILTER),
+    Case("chapel_filter1.5", (128, 96), blend="sample_blends/chapel.blend",
          samples_factor=4, filter_width=DEFAULT_FILTER),
-    Case("suzanne_filter1.5", (96, 96), blend="sample_blends/suzanne.blend", lazyvis=COMPLETE_BLOCKER_MAP["suzanne"],
+    Case("suzanne_filter1.5", (96, 96), blend="sample_blends/suzanne.blend",
          filter_width=DEFAULT_FILTER),
 ) + tuple(Case(f"glossy_{roughness}", (96, 72), build=glossy_floor, options=(("roughness", roughness),),
                samples_factor=4 if roughness < 0.2 else 1)  # a sharp highlight is the path tracer's hard case
