@@ -757,6 +757,13 @@ def _probe_points(uv: np.ndarray, count: np.ndarray) -> np.ndarray:
     return (1.0 - weight)[:, None] * centre + weight[:, None] * uv[rows, corner]
 
 
+def _most_common(values: np.ndarray) -> np.ndarray:
+    """Per row of (N, K) int64 values, the one that occurs most often, the largest among the most frequent."""
+    counts = (values[:, :, None] == values[:, None, :]).sum(axis=2)             # (N, K) occurrences
+    best = counts.max(axis=1, keepdims=True)
+    return np.where(counts == best, values, np.iinfo(np.int64).min).max(axis=1)
+
+
 def _jumps_between(arcs: Arcs, reference: np.ndarray, region: np.ndarray, target: np.ndarray, n_regions: int,
                    pair_batch: int = PAIR_BATCH) -> np.ndarray:
     """D(target) - D(R) for directions ``target`` (N, 3) in ``region`` (N,): the jumps of the region's
@@ -919,9 +926,10 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
     depth = depth_counts(tracer, origin, position[region_couple] + region_ref, own[region_couple],
                          region_arcs_of > 0)
     stats["depth_rays"] = len(region_couple)
-    # A ray can count too few layers (faces touching or overlapping where it passes, met at one
-    # distance), never too many: probe rays to other points of each crossed region, carried back to R
-    # across the arcs between, each give a lower bound of D(R); the largest is kept.
+    # One ray can count too few layers (faces touching or overlapping where it passes, met at one
+    # distance) or too many (through an edge two faces share): probe rays to other points of each
+    # crossed region, carried back to R across the arcs between, each estimate D(R) too, and the value
+    # most of the estimates give is kept (the larger on a tie).
     crossed_regions = np.flatnonzero(region_arcs_of > 0)
     if len(crossed_regions):
         probe_region = np.repeat(crossed_regions, len(_PROBE_WEIGHTS))
@@ -930,7 +938,9 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
         probe_depth = depth_counts(tracer, origin[probe_region], position[region_couple[probe_region]] + probe_dir,
                                    own[region_couple[probe_region]], np.ones(len(probe_region), bool))
         between = _jumps_between(region_arcs, region_ref, probe_region, probe_dir, len(region_couple))
-        np.maximum.at(depth, probe_region, probe_depth - between)
+        estimates = np.concatenate([depth[crossed_regions][:, None],
+                                    (probe_depth - between).reshape(len(crossed_regions), -1)], axis=1)
+        depth[crossed_regions] = _most_common(estimates)
         stats["depth_rays"] += len(probe_region)
 
     # Regions crossed by no arc are wholly visible or wholly hidden: their polygon as it is.
