@@ -17,13 +17,22 @@
   metallic 1), Glossy BSDF and Mix (Diffuse + Glossy) ones; two area lights (issue 4).
 - ``textured.blend``: a checker-textured floor (Image Texture of a 64 x 64 checker image packed into the
   file, Closest interpolation, sRGB) lit by one area light through five thin slats (issue 5).
+- ``suzanne_dense.blend``, ``suzanne_dense3.blend``: Suzanne as in ``suzanne.blend`` but subdivided twice
+  (about 16,000 triangles) or three times (about 63,000), under her DISK and ELLIPSE lights and a small
+  DISK low on her right, whose shadows fall on her face as well as on the floor: level 2 against level 3.
+- ``tree.blend``: a trunk with four branches and 4,000 separate leaf quads (3-6 cm, randomly oriented) in a
+  crown of radius 1 m over a ground, lit by a 1 m SQUARE and a 0.2 m DISK light: a dappled soft shadow.
+- ``chairs.blend``: 150 linked duplicates of one chair mesh (a seat, a back and four 2.5 cm legs, 72
+  triangles) in 10 rows on the floor of a room corner, under a 5 x 2.5 m RECTANGLE light near the ceiling
+  and a low 0.5 m SQUARE light that casts the legs' long shadows.
 
 Every file: a black world, area lights hidden from the camera (Cycles' default), 512 x 512 (chapel
 640 x 480) at 100%, frame range 1-1, render engine LAZYVIS, and Cycles already set up as the project's
 direct-light reference (tools/make_cycles_reference.py) so that switching the engine to Cycles gives the
-image LazyVis should match. The first three use Diffuse BSDF materials only (exact against Cycles); the
-glossy one Principled, Glossy and Mix shaders. Geometry comes from a fixed seed: running the script twice gives the same
-scenes. Files are saved compressed (each about 100 KB).
+image LazyVis should match. The floating boxes, chapel, Suzanne, tree and chairs use Diffuse BSDF
+materials only (exact against Cycles); the glossy one Principled, Glossy and Mix shaders. Geometry comes
+from a fixed seed: running the script twice gives the same scenes. Files are saved compressed (each about
+100 KB, the tree about 400 KB).
 
 Rebuilding changes the files' bytes even when the scenes are the same (Blender stores memory addresses
 and a timestamp): re-run tools/make_cycles_references.py afterwards, the agreement tests check it.
@@ -41,7 +50,8 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 
-SAMPLES = ("floating_boxes", "chapel", "suzanne", "glossy", "textured")
+SAMPLES = ("floating_boxes", "chapel", "suzanne", "glossy", "textured", "suzanne_dense", "suzanne_dense3",
+           "tree", "chairs")
 
 
 # -- building blocks (bpy imported by main before any of these run) ------------------------------------------
@@ -440,6 +450,33 @@ def build_suzanne() -> None:
     cost of pass 2 grows with the triangle count; level 2 is four times the triangles and about three
     times the render time for an image that differs only in the silhouette.
     """
+    scene = _suzanne_on_a_floor(levels=1)
+    add_area_light("Disk", (2.0, -2.5, 5.0), (0.0, 0.0, 0.8), "DISK", 1.2, color=(1.0, 0.9, 0.8), radiance=22.0)
+    add_area_light("Ellipse", (-3.0, -1.0, 3.5), (0.0, 0.0, 0.8), "ELLIPSE", 1.8, 0.5,
+                   color=(0.55, 0.7, 1.0), radiance=16.0)
+    add_camera("Camera", (0.0, -5.2, 2.4), (0.0, 0.0, 0.85), 40.0)
+    # Disk and ellipse lights become polygons of this many vertices with the same area (export.py).
+    scene.lazyvis.disk_vertices = 64
+
+
+def build_suzanne_dense(levels: int = 2) -> None:
+    """Suzanne subdivided ``levels`` times (2: about 16,000 triangles, 3: about 63,000) under three lights.
+
+    The stress case of the level-1 scene's docstring: its disk and ellipse, and a small low disk on her
+    right whose sharper shadows of ear, brow and nose fall on her own face as well as on the floor.
+    """
+    scene = _suzanne_on_a_floor(levels)
+    add_area_light("Disk", (2.0, -2.5, 5.0), (0.0, 0.0, 0.8), "DISK", 1.2, color=(1.0, 0.9, 0.8), radiance=22.0)
+    add_area_light("Ellipse", (-3.0, -1.0, 3.5), (0.0, 0.0, 0.8), "ELLIPSE", 1.8, 0.5,
+                   color=(0.55, 0.7, 1.0), radiance=16.0)
+    add_area_light("Small Disk", (-2.4, -1.6, 1.5), (0.0, 0.0, 1.0), "DISK", 0.25, color=(1.0, 0.8, 0.6),
+                   radiance=120.0)
+    add_camera("Camera", (0.0, -5.2, 2.4), (0.0, 0.0, 0.85), 40.0)
+    scene.lazyvis.disk_vertices = 64
+
+
+def _suzanne_on_a_floor(levels: int):
+    """A new 512 x 512 scene: a 10 x 10 m floor and Suzanne, smooth, subdivided ``levels`` times."""
     import bpy
 
     scene = new_scene(512, 512)
@@ -452,21 +489,83 @@ def build_suzanne() -> None:
     monkey.data.materials.append(skin)
     bpy.ops.object.shade_smooth()
     subsurf = monkey.modifiers.new("Subdivision", "SUBSURF")
-    subsurf.levels, subsurf.render_levels = 1, 1
+    subsurf.levels, subsurf.render_levels = levels, levels
     # Cycles starts shadow rays of smooth faces off the flat triangle (Object > Shading > Shadow Terminator
     # > Geometry Offset, 0.1 by default); LazyVis starts them on the triangle. With 0 Cycles renders what
     # LazyVis does (measured: tests/blender/test_cycles_agreement.py, case suzanne_terminator_offset).
     monkey.shadow_terminator_geometry_offset = 0.0
-    add_area_light("Disk", (2.0, -2.5, 5.0), (0.0, 0.0, 0.8), "DISK", 1.2, color=(1.0, 0.9, 0.8), radiance=22.0)
-    add_area_light("Ellipse", (-3.0, -1.0, 3.5), (0.0, 0.0, 0.8), "ELLIPSE", 1.8, 0.5,
-                   color=(0.55, 0.7, 1.0), radiance=16.0)
-    add_camera("Camera", (0.0, -5.2, 2.4), (0.0, 0.0, 0.85), 40.0)
-    # Disk and ellipse lights become polygons of this many vertices with the same area (export.py).
-    scene.lazyvis.disk_vertices = 64
+    return scene
+
+
+def build_tree() -> None:
+    """A trunk, four branches and 4,000 loose leaves in a 1 m crown over a ground, a square and a small disk."""
+    import bpy
+    from mathutils import Quaternion, Vector
+
+    new_scene(512, 512)
+    bark = diffuse("Bark", (0.35, 0.25, 0.15))
+    add_object("Ground", box_mesh("Ground", [((0.0, 0.0, -0.05), (10.0, 10.0, 0.1))]),
+               diffuse("Grass", (0.6, 0.6, 0.5)))
+    trunk = bpy.data.meshes.new("Trunk")
+    _cylinder(trunk, radius=0.08, depth=1.9, segments=16)
+    add_object("Trunk", trunk, bark, location=(0.0, 0.0, 0.95))
+    branch = bpy.data.meshes.new("Branch")  # one mesh shared by the four branches
+    _cylinder(branch, radius=0.03, depth=0.8, segments=8)
+    for index in range(4):
+        direction = Vector((math.cos(index * math.pi / 2 + 0.4), math.sin(index * math.pi / 2 + 0.4), 1.0)).normalized()
+        add_object(f"Branch {index}", branch, bark, location=Vector((0.0, 0.0, 1.6)) + 0.4 * direction,
+                   rotation=direction.to_track_quat("Z", "Y").to_euler())
+
+    # Leaves: separate quads 3-6 cm long, 0.6 as wide, uniformly rotated, uniform in a ball of radius 1 m.
+    rng = random.Random(11)
+    centre, vertices, faces = Vector((0.0, 0.0, 2.2)), [], []
+    while len(faces) < 4000:
+        offset = Vector((rng.uniform(-1, 1), rng.uniform(-1, 1), rng.uniform(-1, 1)))
+        if offset.length > 1.0:
+            continue
+        turn = Quaternion([rng.gauss(0.0, 1.0) for _ in range(4)]).normalized()
+        length = rng.uniform(0.03, 0.06)
+        corners = [(-0.5, -0.3), (0.5, -0.3), (0.5, 0.3), (-0.5, 0.3)]
+        faces.append(tuple(range(len(vertices), len(vertices) + 4)))
+        vertices += [tuple(centre + offset + turn @ Vector((u * length, v * length, 0.0))) for u, v in corners]
+    leaves = bpy.data.meshes.new("Leaves")
+    leaves.from_pydata(vertices, [], faces)
+    leaves.validate()
+    add_object("Leaves", leaves, diffuse("Leaf", (0.25, 0.5, 0.15)))
+
+    # Both lights on the camera's right: the crown is lit where seen, its shadows fall to the left of the trunk.
+    add_area_light("Square", (2.5, -1.5, 6.0), (0.0, 0.0, 2.2), "SQUARE", 1.0, color=(1.0, 0.95, 0.85), radiance=25.0)
+    add_area_light("Small Disk", (3.0, 0.5, 6.5), (0.0, 0.0, 2.2), "DISK", 0.2, color=(0.7, 0.8, 1.0),
+                   radiance=500.0)
+    add_camera("Camera", (1.0, -6.5, 4.0), (-0.6, 0.3, 1.0), 50.0)
+
+
+def build_chairs() -> None:
+    """150 linked duplicates of one 6-box chair in 10 rows on the floor of a room's corner, two lights."""
+    new_scene(512, 512)
+    add_object("Floor", box_mesh("Floor", [((0.0, 0.0, -0.05), (12.0, 12.0, 0.1))]), diffuse("Floor", (0.7, 0.7, 0.7)))
+    walls = [((-6.05, 0.0, 1.75), (0.1, 12.0, 3.5)), ((0.0, 6.05, 1.75), (12.2, 0.1, 3.5))]
+    add_object("Walls", box_mesh("Walls", walls), diffuse("Wall", (0.8, 0.78, 0.72)))
+    seat_and_back = [((0.0, 0.0, 0.455), (0.42, 0.42, 0.03)), ((0.0, 0.195, 0.69), (0.42, 0.03, 0.44))]
+    legs = [((x, y, 0.22), (0.025, 0.025, 0.44)) for x in (-0.19, 0.19) for y in (-0.19, 0.19)]
+    chair = box_mesh("Chair", seat_and_back + legs)  # 72 triangles, one mesh for all the chairs
+    chair.materials.append(diffuse("Chair", (0.6, 0.35, 0.2)))
+    rng = random.Random(5)
+    for row in range(10):
+        for seat in range(15):
+            location = (-4.2 + 0.6 * seat + rng.uniform(-0.05, 0.05), -4.5 + 0.95 * row + rng.uniform(-0.05, 0.05), 0.0)
+            add_object(f"Chair {row}-{seat:02d}", chair, location=location,
+                       rotation=(0.0, 0.0, math.radians(rng.uniform(-8.0, 8.0))))
+    # The chairs face -y, towards both lights and the camera; the low square light casts long leg shadows.
+    add_area_light("Ceiling", (0.0, -1.0, 3.4), (0.0, -1.0, 0.0), "RECTANGLE", 5.0, 2.5, color=(1.0, 0.95, 0.9),
+                   radiance=8.0)
+    add_area_light("Square", (5.0, -5.0, 2.5), (0.0, 0.0, 0.0), "SQUARE", 0.5, color=(0.75, 0.85, 1.0), radiance=150.0)
+    add_camera("Camera", (4.5, -8.5, 8.0), (-0.3, 0.3, 0.2), 50.0)
 
 
 BUILDERS = {"floating_boxes": build_floating_boxes, "chapel": build_chapel, "suzanne": build_suzanne,
-            "glossy": build_glossy, "textured": build_textured}
+            "glossy": build_glossy, "textured": build_textured, "suzanne_dense": build_suzanne_dense,
+            "suzanne_dense3": lambda: build_suzanne_dense(levels=3), "tree": build_tree, "chairs": build_chairs}
 
 
 def main(argv: list[str]) -> int:
