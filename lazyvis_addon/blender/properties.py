@@ -31,6 +31,13 @@ GLOSSY_INTEGRATOR_ITEMS = (
      "sample counts"),
 )
 
+VISIBILITY_ITEMS = (
+    ("silhouettes", "Silhouettes", "Every edge that can cross a light is found, however small; the visible part "
+     "comes out exactly from the silhouette arcs crossing the light (no missed blockers)"),
+    ("blocker_map", "Blocker Map", "The paper's method: shadow rays seed a blocker map that is flood-filled "
+     "through the image (fast on big blockers; misses blockers no shadow ray hits)"),
+)
+
 
 class LazyVisSceneSettings(bpy.types.PropertyGroup):
     """Render settings of the Lazy Visibility engine (``scene.lazyvis``)."""
@@ -42,6 +49,8 @@ class LazyVisSceneSettings(bpy.types.PropertyGroup):
                                     description="How glossy reflection (Principled and Glossy BSDFs) is "
                                                 "integrated over the visible part of each light by the Analytic "
                                                 "and Reference integrators")
+    visibility: EnumProperty(name="Visibility", items=VISIBILITY_ITEMS, default=_DEFAULTS.visibility,
+                             description="How the Analytic integrator finds what each pixel sees of a light")
     shadow_rays: IntProperty(name="Shadow Rays", default=_DEFAULTS.shadow_rays, min=1, soft_max=64,
                              description="Shadow rays per pixel and light that look for blockers (pass 1), "
                                          "stratified over the light")
@@ -103,7 +112,8 @@ class LazyVisViewLayerSettings(bpy.types.PropertyGroup):
     """Passes of the Lazy Visibility engine beyond Blender's own (``view_layer.lazyvis``)."""
 
     use_pass_blocker_count: BoolProperty(name="Blocker Count", default=True,
-                                         description="Blocker-light pairs found per pixel by pass 1",
+                                         description="Silhouette arcs crossing the pixel's lights (Silhouettes), "
+                                                     "or blocker-light pairs found by pass 1 (Blocker Map)",
                                          update=lambda self, context: context.view_layer.update_render_passes())
     use_pass_sample_count: BoolProperty(name="Sample Count", default=False,
                                         description="Shaded camera samples per pixel: Edge Samples on "

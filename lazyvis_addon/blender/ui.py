@@ -64,8 +64,12 @@ class LAZYVIS_RENDER_PT_integrator(LazyVisPanel, bpy.types.Panel):
         sub = layout.column()
         sub.active = props.integrator in ("analytic", "reference")
         sub.prop(props, "glossy_integrator")
+        sub = layout.column()
+        sub.active = props.integrator == "analytic"
+        sub.prop(props, "visibility")
         col = layout.column(align=True)
-        col.active = props.integrator in ("analytic", "reduced_mc")
+        col.active = props.integrator == "reduced_mc" or (props.integrator == "analytic" and (
+            props.visibility == "blocker_map" or props.glossy_integrator == "mc"))
         col.prop(props, "shadow_rays")
         col = layout.column(align=True)
         col.active = props.integrator in ("reduced_mc", "standard_mc") or props.glossy_integrator == "mc"

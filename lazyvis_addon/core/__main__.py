@@ -20,7 +20,7 @@ from .png import linear_to_srgb8, write_png
 from .progress import Progress, RenderCancelled
 from .render import RenderOutput, render
 from .scene import Camera, Scene
-from .settings import GLOSSY_INTEGRATORS, INTEGRATORS, Settings
+from .settings import GLOSSY_INTEGRATORS, INTEGRATORS, VISIBILITY_METHODS, Settings
 
 
 class ConsoleProgress(Progress):
@@ -77,6 +77,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--integrator", choices=INTEGRATORS, default=defaults.integrator)
     parser.add_argument("--glossy-integrator", choices=GLOSSY_INTEGRATORS, default=defaults.glossy_integrator,
                         help="how GGX lobes are integrated over the visible pieces")
+    parser.add_argument("--visibility", choices=VISIBILITY_METHODS, default=defaults.visibility,
+                        help="silhouettes (complete, exact) or the paper's blocker map")
     parser.add_argument("--shadow-rays", type=int, default=defaults.shadow_rays)
     parser.add_argument("--verify-rays", type=int, default=defaults.verify_rays,
                         help="verification rays per pixel and light (0: off)")
@@ -112,6 +114,7 @@ def main(argv=None) -> int:
             scene.camera = Camera(cam.world_from_camera, cam.width, cam.height, cam.projection, cam.screen_window,
                                   tuple(args.window))
         settings = Settings(integrator=args.integrator, glossy_integrator=args.glossy_integrator,
+                            visibility=args.visibility,
                             shadow_rays=args.shadow_rays, verify_rays=args.verify_rays, mc_samples=args.samples,
                             aa_samples=args.edge_samples, aa_coverage_rays=args.coverage_rays,
                             filter_width=args.filter_width,

@@ -99,6 +99,8 @@ class MeshEdges:
     high: np.ndarray
     node_low: np.ndarray
     node_high: np.ndarray
+    n_triangles: int = 0
+    in_light_planes: np.ndarray | None = None   # sorted light * T + triangle of faces in a light's plane
 
     def __len__(self) -> int:
         return len(self.light)
@@ -159,7 +161,10 @@ class MeshEdges:
             for light in range(len(frames)):  # lights: a handful
                 parts.append(_cut_segments(triangles, frames, light, width))
         start, end, thirds, triangles_of, lights = (np.concatenate([p[i] for p in parts]) for i in range(5))
-        return cls._in_tree_order(start, end, thirds, triangles_of, lights)
+        edges = cls._in_tree_order(start, end, thirds, triangles_of, lights)
+        edges.n_triangles = n
+        edges.in_light_planes = _in_light_planes(triangles, frames) if frames is not None else np.zeros(0, np.int64)
+        return edges
 
     @classmethod
     def _in_tree_order(cls, start, end, third, triangle, light) -> "MeshEdges":
@@ -188,6 +193,23 @@ class MeshEdges:
         face_size = np.linalg.norm(face_normal, axis=2)
         return cls(start, end, third, triangle, light, face_normal, face_offset, face_size, low, high, node_low,
                    node_high)
+
+
+# Faces within this distance (relative to the scene's coordinates) of a light's plane lie in it: a mesh
+# light's own faces, a ceiling a light is set into. They block nothing (the edges' slab leaves them out),
+# and a reference depth ray that meets them near its end, by float32 rounding, does not count them.
+PLANE_FACE_EPS = 1e-6
+
+
+def _in_light_planes(triangles: np.ndarray, frames: LightFrames) -> np.ndarray:
+    """Sorted keys light * T + triangle (int64) of the faces lying in each light's plane."""
+    scale = max(float(np.abs(triangles).max()) if len(triangles) else 1.0, 1e-300)
+    keys = []
+    for light in range(len(frames)):  # lights: a handful
+        height = np.einsum("tvk,k->tv", triangles - frames.origin[light], frames.normal[light])
+        flat = np.flatnonzero((np.abs(height) <= PLANE_FACE_EPS * scale).all(axis=1))
+        keys.append(light * len(triangles) + flat)
+    return np.sort(np.concatenate(keys)) if keys else np.zeros(0, np.int64)
 
 
 def _cut_segments(triangles: np.ndarray, frames: LightFrames, light: int, k: int = 2):
@@ -688,8 +710,8 @@ def visible_fans(arcs: Arcs, light_dirs: np.ndarray, light_count: np.ndarray, re
 # The reference depth
 # ------------------------------------------------------------------------------------------------------
 
-def depth_counts(tracer, origin: np.ndarray, target: np.ndarray, own_triangle: np.ndarray, full: np.ndarray
-                 ) -> np.ndarray:
+def depth_counts(tracer, origin: np.ndarray, target: np.ndarray, own_triangle: np.ndarray, full: np.ndarray,
+                 light: np.ndarray | None = None, edges: "MeshEdges | None" = None) -> np.ndarray:
     """Triangles met by the segments origin -> target (N, 3 each), short of the target's light plane, not
     counting ``own_triangle`` (N,); where ``full`` (N,) bool is False only 0 or 1 (hidden or not) is wanted.
 
@@ -709,6 +731,10 @@ def depth_counts(tracer, origin: np.ndarray, target: np.ndarray, own_triangle: n
         hit = hits.index_triangle >= 0
         triangle = hits.index_triangle
         counted = hit & (triangle != own_triangle[active]) & (triangle != last[active])
+        if edges is not None and len(edges.in_light_planes):  # faces in the ray's light's plane block nothing
+            key = light[active] * edges.n_triangles + np.maximum(triangle, 0)
+            where = np.minimum(np.searchsorted(edges.in_light_planes, key), len(edges.in_light_planes) - 1)
+            counted &= edges.in_light_planes[where] != key
         count[active[counted]] += 1
         step = np.where(hit, hits.t, 0.0) + 1e-5
         start[active] += step[:, None] * direction[active]
@@ -848,7 +874,9 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
     n_groups = int(group_of_pixel[order].max()) + 1
     n_lights = len(frames)
     group = group_of_pixel[couple_pixel]
-    query_key = group * n_lights + couples.light
+    # One query per (group, light, side of the light): a two-sided light lights receivers of a group on
+    # both of its sides, whose slabs differ.
+    query_key = (group * n_lights + couples.light) * 2 + (couples.side > 0)
     morton_rank = np.empty(len(surface), np.int64)
     morton_rank[order] = np.arange(len(order))
     by_query = np.lexsort((morton_rank[couple_pixel], query_key))
@@ -857,7 +885,7 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
     group_high = np.full((n_groups, 3), -np.inf)
     np.minimum.at(group_low, group, position)
     np.maximum.at(group_high, group, position)
-    query_group, query_light = keys // n_lights, keys % n_lights
+    query_group, query_light = keys // 2 // n_lights, keys // 2 % n_lights
     query_couple = by_query[query_first]
     query_side = couples.side[query_couple]
     query_height = np.zeros(len(keys))
@@ -924,7 +952,7 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
     origin = position[region_couple] + (surface.offset[couple_pixel] [:, None] * surface.geometric_normal[couple_pixel]
                                         )[region_couple]
     depth = depth_counts(tracer, origin, position[region_couple] + region_ref, own[region_couple],
-                         region_arcs_of > 0)
+                         region_arcs_of > 0, couples.light[region_couple], edges)
     stats["depth_rays"] = len(region_couple)
     # One ray can count too few layers (faces touching or overlapping where it passes, met at one
     # distance) or too many (through an edge two faces share): probe rays to other points of each
@@ -936,7 +964,8 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
         probe_uv = _probe_points(region_uv[probe_region], region_count[probe_region])
         probe_dir = couples.directions(frames, probe_uv[:, None, :], region_couple[probe_region])[:, 0]
         probe_depth = depth_counts(tracer, origin[probe_region], position[region_couple[probe_region]] + probe_dir,
-                                   own[region_couple[probe_region]], np.ones(len(probe_region), bool))
+                                   own[region_couple[probe_region]], np.ones(len(probe_region), bool),
+                                   couples.light[region_couple[probe_region]], edges)
         between = _jumps_between(region_arcs, region_ref, probe_region, probe_dir, len(region_couple))
         estimates = np.concatenate([depth[crossed_regions][:, None],
                                     (probe_depth - between).reshape(len(crossed_regions), -1)], axis=1)

@@ -58,6 +58,7 @@ def test_every_setting_has_a_property_and_reaches_settings(scene):
     props = scene.lazyvis
     props.integrator = "reduced_mc"
     props.glossy_integrator = "phong"
+    props.visibility = "blocker_map"
     props.shadow_rays = 7
     props.mc_samples = 33
     props.connectivity = "4"
@@ -76,7 +77,7 @@ def test_every_setting_has_a_property_and_reaches_settings(scene):
     props.aa_samples = 4
     props.aa_coverage_rays = 8
     assert settings_from_scene(scene) == Settings(
-        integrator="reduced_mc", glossy_integrator="phong",
+        integrator="reduced_mc", glossy_integrator="phong", visibility="blocker_map",
         shadow_rays=7, mc_samples=33, connectivity=4, umbra_detection=False, seed=12,
         frame=42, transparent_background=True, memory_budget_mb=512.0, pixel_batch=4096,
         window_margin=5, threads=3, merge_quads=False, filter_width=0.75, filter_type="GAUSSIAN",

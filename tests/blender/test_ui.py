@@ -49,7 +49,7 @@ def test_render_panels_draw_scene_properties(scene):
     for panel in (ui.LAZYVIS_RENDER_PT_integrator, ui.LAZYVIS_RENDER_PT_blocker_map, ui.LAZYVIS_RENDER_PT_lights,
                   ui.LAZYVIS_RENDER_PT_film, ui.LAZYVIS_RENDER_PT_performance, ui.LAZYVIS_VIEWLAYER_PT_passes):
         drawn += draw(panel, context).props
-    for name in ("integrator", "glossy_integrator",
+    for name in ("integrator", "glossy_integrator", "visibility",
                  "shadow_rays", "mc_samples", "seed", "connectivity", "umbra_detection",
                  "window_margin", "merge_quads", "disk_vertices", "film_transparent", "pixel_filter_type", "filter_width",
                  "aa_samples", "aa_coverage_rays", "aa_threshold", "memory_budget_mb", "pixel_batch", "threads_mode", "threads",
