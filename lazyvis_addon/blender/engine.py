@@ -113,8 +113,17 @@ def render_frame(engine: bpy.types.RenderEngine, depsgraph) -> None:
         engine.report({'ERROR'}, f"LazyVis internal error ({type(error).__name__}: {error}); "
                                  "the system console has the details")
         return
-    seconds = output.stats.get("seconds")
-    engine.update_stats("", f"LazyVis | Done in {seconds:.2f} s" if seconds is not None else "LazyVis | Done")
+    engine.update_stats("", done_message(output.stats))
+
+
+def done_message(stats: dict) -> str:
+    """The status line after a render: total time and the stages that took the most (at most four)."""
+    seconds = stats.get("seconds")
+    if seconds is None:
+        return "LazyVis | Done"
+    stages = sorted(stats.get("stage_seconds", {}).items(), key=lambda item: -item[1])[:4]
+    detail = ", ".join(f"{name} {value:.2f} s" for name, value in stages if value >= 0.005)
+    return f"LazyVis | Done in {seconds:.2f} s" + (f" ({detail})" if detail else "")
 
 
 def write_result(engine: bpy.types.RenderEngine, view_layer, window, output) -> None:

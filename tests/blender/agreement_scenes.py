@@ -142,6 +142,10 @@ CASES = (
          reference_integrator=True),
     Case("emitter_panel", (64, 48), build=emitter_panel, reference_integrator=True),
     Case("textured", (96, 96), blend="sample_blends/textured.blend"),
+    # Issue 13: real geometry at LazyVis' defaults (a dense smooth mesh, foliage, thin legs).
+    Case("suzanne_dense", (96, 96), blend="sample_blends/suzanne_dense.blend"),
+    Case("tree", (48, 48), blend="sample_blends/tree.blend", samples_factor=2),
+    Case("chairs", (96, 96), blend="sample_blends/chairs.blend"),
     # Issue 5: Blender's default pixel filter, LazyVis anti-aliasing with its defaults.
     Case("floating_boxes_filter1.5", (96, 96), blend="sample_blends/floating_boxes.blend", filter_width=DEFAULT_FILTER),
     Case("textured_filter1.5", (96, 96), blend="sample_blends/textured.blend", filter_width=DEFAULT_FILTER),

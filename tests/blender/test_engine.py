@@ -305,3 +305,12 @@ def test_memory_error_is_reported(scene, monkeypatch):
     monkeypatch.setattr(engine_module, "core_render", render)
     with pytest.raises(RuntimeError, match="LazyVis: out of memory"):
         bpy.ops.render.render()
+
+
+def test_status_line_names_the_slowest_stages():
+    """The render's status line after a frame: the total and up to four stages, slowest first."""
+    stats = {"seconds": 3.0, "stage_seconds": {"Camera rays": 0.3, "Illumination": 2.5, "Validating scene": 0.001,
+                                               "Building BVH": 0.1, "Building edge tree": 0.05, "Composing": 0.02}}
+    assert engine_module.done_message(stats) == ("LazyVis | Done in 3.00 s (Illumination 2.50 s, Camera rays "
+                                                 "0.30 s, Building BVH 0.10 s, Building edge tree 0.05 s)")
+    assert engine_module.done_message({}) == "LazyVis | Done"
