@@ -293,12 +293,16 @@ def candidate_edges(edges: MeshEdges, frames: LightFrames, group_low: np.ndarray
     side_normal, side_offset, side_valid = _side_planes(frames, query_light, query_side, group_low[query_group],
                                                         group_high[query_group])
 
-    def overlaps(q, box_low, box_high):
+    def overlaps(q, box_low, box_high, sides=True):
         ok = (box_low <= high[q]).all(axis=1) & (box_high >= low[q]).all(axis=1)
-        for k in range(4):  # the shadow volume's side planes
-            n = side_normal[q, k]
-            lowest = np.einsum("nk,nk->n", n, np.where(n > 0, box_low, box_high))
-            ok &= ~(side_valid[q, k] & (lowest > side_offset[q, k] + eps[q]))
+        if not sides:
+            return ok
+        rows = np.flatnonzero(ok)
+        q, box_low, box_high = q[rows], box_low[rows], box_high[rows]
+        # The lowest value of each side plane over the box, all four at once: (N, 4).
+        n = side_normal[q]
+        lowest = np.einsum("nsk,nsk->ns", n, np.where(n > 0, box_low[:, None], box_high[:, None]))
+        ok[rows] = ~(side_valid[q] & (lowest > side_offset[q] + eps[q][:, None])).any(axis=1)
         return ok
 
     n_leaves = edges.n_leaves
