@@ -78,10 +78,13 @@ def test_dense_sphere_over_a_floor_matches_the_reference():
     assert (out.blocker_count > 0).any()
 
 
-@pytest.mark.parametrize("defect", ["non_manifold", "duplicate_faces", "flipped_normals", "zero_area"])
+@pytest.mark.parametrize("defect", ["non_manifold", "duplicate_faces", "flipped_normals", "zero_area",
+                                    "coplanar_overlap"])
 def test_broken_meshes_render_exactly(defect):
-    """Edges shared by three faces, faces repeated, faces wound against their neighbours and faces of no
-    area: the depth jumps add up per face whatever the mesh's topology, so every case is exact."""
+    """Edges shared by three faces, faces repeated, faces wound against their neighbours, faces of no
+    area: the depth jumps add up per face whatever the mesh's topology, so every case is exact. Two
+    distinct coplanar plates overlapping: a ray through the overlap counts one layer, but the probe rays
+    outside it outvote it (a plate overlap covering most of a light would not be outvoted)."""
     blocker = box_triangles((0.1, 0.0, 0.5), (0.5, 0.4, 0.2))
     if defect == "non_manifold":  # a fin on one of the bottom face's edges, slanting out of the box
         fin = np.array([[blocker[0, 0], blocker[0, 1], blocker[0, 0] + (-0.3, 0.0, 0.4)]])
@@ -91,6 +94,10 @@ def test_broken_meshes_render_exactly(defect):
     elif defect == "flipped_normals":
         blocker = blocker.copy()
         blocker[::3] = blocker[::3, ::-1]
+    elif defect == "coplanar_overlap":
+        blocker = np.concatenate([
+            quad_triangles([(-0.3, -0.3, 0.5), (0.2, -0.3, 0.5), (0.2, 0.2, 0.5), (-0.3, 0.2, 0.5)]),
+            quad_triangles([(-0.1, -0.1, 0.5), (0.4, -0.1, 0.5), (0.4, 0.4, 0.5), (-0.1, 0.4, 0.5)])])
     elif defect == "zero_area":
         line = np.array([[(0.0, 0.0, 0.4), (0.3, 0.0, 0.4), (0.6, 0.0, 0.4)],
                          [(0.2, 0.2, 0.45), (0.2, 0.2, 0.45), (0.4, 0.1, 0.45)]])
