@@ -582,6 +582,17 @@ def _straddles(va: np.ndarray, vb: np.ndarray) -> np.ndarray:
     return ((va < 0) & (vb > 0)) | ((va > 0) & (vb < 0))
 
 
+def _crosses(arcs: Arcs, j: np.ndarray, origin: np.ndarray, target: np.ndarray, origin_value: np.ndarray,
+             target_value: np.ndarray) -> np.ndarray:
+    """(N,) bool: the arc from ``origin`` to ``target`` (N, 3) crosses arc ``j`` (N,), given the values of
+    arc j's plane at both ends (which side each is on: the caller's, so that every use agrees)."""
+    straddle = _straddles(origin_value, target_value)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.where(straddle, origin_value / (origin_value - target_value), 0.0)
+    point = origin + s[:, None] * (target - origin)
+    return straddle & _within(point, arcs.start[j], arcs.end[j], arcs.normal[j])
+
+
 def _split_pieces(carrier: np.ndarray, split_t: np.ndarray, low: np.ndarray, high: np.ndarray):
     """Pieces of carriers (segments) cut at parameters ``split_t`` (with carrier ``carrier``), each carrier
     c running from low[c] to high[c]: (carrier, t0, t1) of every piece longer than rounding."""
@@ -679,13 +690,7 @@ def visible_fans(arcs: Arcs, light_dirs: np.ndarray, light_count: np.ndarray, re
         va = np.einsum("nk,nk->n", arcs.normal[j], carrier_start[p])
         vb = np.einsum("nk,nk->n", arcs.normal[j], carrier_end[p])
         value = (1.0 - t_mid[p]) * va + t_mid[p] * vb
-        rv = reference_value[j]
-        straddle = _straddles(rv, value)
-        p, j, value, rv = p[straddle], j[straddle], value[straddle], rv[straddle]
-        s = rv / (rv - value)
-        origin = reference[piece_couple[p]]
-        point = origin + s[:, None] * (mid[p] - origin)
-        hit = _within(point, arcs.start[j], arcs.end[j], arcs.normal[j])
+        hit = _crosses(arcs, j, reference[piece_couple[p]], mid[p], reference_value[j], value)
         d_near += np.bincount(p[hit], weights=arcs.jump[j[hit]], minlength=len(piece_couple)).astype(np.int64)
     d_far = d_near.copy()
     d_far[:n_arc_pieces] += arcs.jump[piece_arc]
@@ -803,14 +808,8 @@ def _jumps_between(arcs: Arcs, reference: np.ndarray, region: np.ndarray, target
     total = np.zeros(len(region), np.int64)
     reference_value = np.einsum("nk,nk->n", arcs.normal, reference[arcs.couple])
     for p, j in _pair_batches(region, first_arc, arcs_of, pair_batch):
-        rv = reference_value[j]
         value = np.einsum("nk,nk->n", arcs.normal[j], target[p])
-        straddle = _straddles(rv, value)
-        p, j, rv, value = p[straddle], j[straddle], rv[straddle], value[straddle]
-        s = rv / (rv - value)
-        origin = reference[region[p]]
-        point = origin + s[:, None] * (target[p] - origin)
-        hit = _within(point, arcs.start[j], arcs.end[j], arcs.normal[j])
+        hit = _crosses(arcs, j, reference[region[p]], target[p], reference_value[j], value)
         total += np.bincount(p[hit], weights=arcs.jump[j[hit]], minlength=len(region)).astype(np.int64)
     return total
 
