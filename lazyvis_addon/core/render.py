@@ -89,8 +89,10 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
 
     frames = light_frames(scene.lights)
     pixel_global = _global_pixels(camera)
-    polygons = BlockerPolygons.from_triangles(scene.triangles, merge=settings.merge_quads)
-    stats["blocker_polygons"] = len(polygons)
+    polygons = None  # the silhouettes need no blocker polygons (nor their convex parts' setup)
+    if not settings.uses_silhouettes:
+        polygons = BlockerPolygons.from_triangles(scene.triangles, merge=settings.merge_quads)
+        stats["blocker_polygons"] = len(polygons)
     lazy = settings.integrator in ("analytic", "reduced_mc") and not settings.uses_silhouettes
     blockers = None
     edges = None
@@ -227,6 +229,9 @@ def _primary(scene: Scene, tracer, extent: float, settings: Settings, progress: 
     return SurfacePoints(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(SurfacePoints)))
 
 
+# Counters the silhouette pass adds to the render's stats.
+SILHOUETTE_COUNTERS = ("edge_tests", "arcs", "depth_rays", "inconsistent_couples", "cells")
+
 # Smallest batch split further for threads: per-batch numpy overheads stay well under the work.
 MIN_SHARED_BATCH = 2048
 
@@ -247,7 +252,7 @@ def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: Bloc
     stats = {"pieces": 0, "max_blockers_per_couple": 0, "verify_rays": 0}
     if edges is not None:
         stats.update(umbra=np.zeros((n_pixels, len(frames)), bool), arcs_per_pixel=np.zeros(n_pixels, np.int64),
-                     edge_tests=0, arcs=0, depth_rays=0, inconsistent_couples=0, cells=0)
+                     **dict.fromkeys(SILHOUETTE_COUNTERS, 0))
     empty = np.zeros(0, np.int64)
     if len(frames) == 0:
         return radiance, stats, (empty, empty, empty)
@@ -272,29 +277,9 @@ def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: Bloc
         result = np.zeros((stop - start, 3))
         n_pieces, rounds, verify_rays, found = 0, 0, 0, []
         local = None
-        extra = {"umbra": np.zeros((stop - start, len(frames)), bool), "arcs_per_pixel": np.zeros(stop - start, np.int64),
-                 "edge_tests": 0, "arcs": 0, "depth_rays": 0, "inconsistent_couples": 0, "cells": 0}
         if edges is not None:
-            for lights in groups:  # lights of similar polygon size: a handful of groups
-                couples, couple_pixel = couples_for(part, frames, np.broadcast_to(~lights[None, :],
-                                                                                  (len(part), len(frames))))
-                uv, couple, sign, whole_terms, hidden, found_stats = silhouette_pieces(
-                    part, frames, edges, tracer, couples, couple_pixel, row_batch)
-                rounds_here = found_stats["max_arcs_per_couple"]
-                fans = VisiblePieces(couples, couple_pixel, uv, np.full(len(couple), 3, np.int64), couple,
-                                     rounds_here, sign)
-                whole, whole_uv, whole_count = whole_terms
-                lights_whole = VisiblePieces(couples, couple_pixel, whole_uv, whole_count, whole, rounds_here,
-                                             np.ones(len(whole)))
-                weights = couple_weights(fans, part, frames, bsdf, settings, globals_, more=lights_whole)
-                result += reflected_radiance(stop - start, frames, couples, couple_pixel, weights)
-                n_pieces += len(couple) + len(whole)
-                rounds = max(rounds, rounds_here)
-                extra["umbra"][couple_pixel[hidden], couples.light[hidden]] = True
-                extra["arcs_per_pixel"] += np.bincount(couple_pixel, weights=found_stats.pop("arcs_of_couple"),
-                                                       minlength=stop - start).astype(np.int64)
-                for name in ("edge_tests", "arcs", "depth_rays", "inconsistent_couples", "cells"):
-                    extra[name] += found_stats[name]
+            result, n_pieces, rounds, extra = _shade_silhouettes(part, bsdf, globals_, frames, edges, tracer, settings,
+                                                                 groups, row_batch)
             return start, stop, result, n_pieces, rounds, (empty, empty, empty, 0), extra
         if settings.integrator != "standard_mc":
             lo, hi = entry_bounds[index], entry_bounds[index + 1]
@@ -333,7 +318,7 @@ def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: Bloc
         if extra is not None:
             stats["umbra"][start:stop] = extra["umbra"]
             stats["arcs_per_pixel"][start:stop] = extra["arcs_per_pixel"]
-            for name in ("edge_tests", "arcs", "depth_rays", "inconsistent_couples", "cells"):
+            for name in SILHOUETTE_COUNTERS:
                 stats[name] += extra[name]
         stats["pieces"] += n_pieces
         stats["max_blockers_per_couple"] = max(stats["max_blockers_per_couple"], rounds)
@@ -342,6 +327,35 @@ def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: Bloc
     progress.end_stage()
     missed = tuple(np.concatenate([f[i] for f in found]) if found else empty for i in range(3))
     return radiance, stats, missed
+
+
+def _shade_silhouettes(part: SurfacePoints, bsdf: SurfaceBsdf, pixel_global: np.ndarray, frames, edges: MeshEdges,
+                       tracer, settings: Settings, groups, row_batch: int) -> tuple[np.ndarray, int, int, dict]:
+    """Pass 2 by silhouettes over one batch of N points: radiance (N, 3), terms integrated, most arcs of a
+    couple, and the batch's "umbra" (N, L), "arcs_per_pixel" (N,) and SILHOUETTE_COUNTERS."""
+    n_points = len(part)
+    result = np.zeros((n_points, 3))
+    extra = {"umbra": np.zeros((n_points, len(frames)), bool), "arcs_per_pixel": np.zeros(n_points, np.int64),
+             **dict.fromkeys(SILHOUETTE_COUNTERS, 0)}
+    n_terms, rounds = 0, 0
+    for lights in groups:  # lights of similar polygon size: a handful of groups
+        couples, couple_pixel = couples_for(part, frames, np.broadcast_to(~lights[None, :], (n_points, len(frames))))
+        uv, couple, sign, (whole, whole_uv, whole_count), hidden, found = silhouette_pieces(
+            part, frames, edges, tracer, couples, couple_pixel, row_batch)
+        fans = VisiblePieces(couples, couple_pixel, uv, np.full(len(couple), 3, np.int64), couple,
+                             found["max_arcs_per_couple"], sign)
+        lights_whole = VisiblePieces(couples, couple_pixel, whole_uv, whole_count, whole,
+                                     found["max_arcs_per_couple"], np.ones(len(whole)))
+        weights = couple_weights(fans, part, frames, bsdf, settings, pixel_global, more=lights_whole)
+        result += reflected_radiance(n_points, frames, couples, couple_pixel, weights)
+        n_terms += len(couple) + len(whole)
+        rounds = max(rounds, found["max_arcs_per_couple"])
+        extra["umbra"][couple_pixel[hidden], couples.light[hidden]] = True
+        extra["arcs_per_pixel"] += np.bincount(couple_pixel, weights=found["arcs_of_couple"],
+                                               minlength=n_points).astype(np.int64)
+        for name in SILHOUETTE_COUNTERS:
+            extra[name] += found[name]
+    return result, n_terms, rounds, extra
 
 
 # Verification at anti-aliasing samples: rays per sample and light (whatever ``verify_rays`` is), and

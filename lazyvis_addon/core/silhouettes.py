@@ -31,12 +31,14 @@ Everything runs on array batches: the loops are over tree levels, batches and a 
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
 from .blockers import _rank_within, _unique_points
 from .geometry import PLANE_EPS, LightFrames, ReceiverLight, clip_convex, cross3, trim
+from .illumination import _pad_to
 
 # Edge records per leaf of the edge tree.
 LEAF_EDGES = 32
@@ -424,7 +426,7 @@ class Arcs:
 
 def couple_arcs(edges: MeshEdges, frames: LightFrames, couples: ReceiverLight, position: np.ndarray,
                 own_triangle: np.ndarray, cone: np.ndarray, cone_valid: np.ndarray, bound: np.ndarray,
-                reference: np.ndarray, couple: np.ndarray, record: np.ndarray, stats: dict | None = None) -> Arcs:
+                reference: np.ndarray, couple: np.ndarray, record: np.ndarray) -> Arcs:
     """Test (couple, edge record) rows: the edges whose jump is not 0 and whose front part crosses the cone.
 
     Parameters
@@ -452,8 +454,6 @@ def couple_arcs(edges: MeshEdges, frames: LightFrames, couples: ReceiverLight, p
         sign[cut_rows] = np.where(away > 0, sign[cut_rows], 0.0)
     total = sign.sum(axis=1)
     rows = np.flatnonzero(total != 0)
-    if stats is not None:
-        stats["silhouette_rows"] = stats.get("silhouette_rows", 0) + len(rows)
     couple, record, x, total = couple[rows], record[rows], x[rows], total[rows]
     light = couples.light[couple]
     side = couples.side[couple]
@@ -933,7 +933,7 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
         couple = by_query[unit_start[row_unit] + offset]
         stats["edge_tests"] += len(couple)
         arcs.append(couple_arcs(edges, frames, couples, position, own, cone, cone_valid, bound, reference,
-                                couple, pair_record[np.repeat(pair, size)], stats))
+                                couple, pair_record[np.repeat(pair, size)]))
     arcs = Arcs.concat(arcs) if arcs else Arcs.empty()
     arcs = arcs.take(np.argsort(arcs.couple, kind="stable"))
     stats["arcs"] = len(arcs.couple)
@@ -981,8 +981,7 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
     busy = np.flatnonzero(crossed)
     renumber = np.full(len(region_couple), -1, np.int64)
     renumber[busy] = np.arange(len(busy))
-    sub = region_arcs.take(np.arange(len(region_arcs.couple)))
-    sub.couple = renumber[region_arcs.couple]
+    sub = dataclasses.replace(region_arcs, couple=renumber[region_arcs.couple])
     piece_region, p_start, p_end, sign, whole, inconsistent = visible_fans(
         sub, region_dirs[busy], region_count[busy], region_ref[busy], depth[busy])
     stats["inconsistent_couples"] = inconsistent
@@ -1075,14 +1074,7 @@ def _regions(couples: ReceiverLight, frames: LightFrames, arcs: Arcs, arcs_of: n
     region_arcs = Arcs.concat([kept, in_cells])
     region_arcs = region_arcs.take(np.argsort(region_arcs.couple, kind="stable"))
     width = max(couples.uv.shape[1], cell_uv.shape[1])
-    region_uv = np.concatenate([_pad_columns(couples.uv[light_couples], width), _pad_columns(cell_uv, width)])
+    region_uv = np.concatenate([_pad_to(couples.uv[light_couples], width), _pad_to(cell_uv, width)])
     return (np.concatenate([light_couples, cell_couple]), region_uv,
             np.concatenate([couples.count[light_couples], cell_count]), region_arcs,
             np.concatenate([reference_uv[light_couples], cell_ref_uv]))
-
-
-def _pad_columns(points: np.ndarray, width: int) -> np.ndarray:
-    """Pad (N, K, D) polygons to K = width by repeating the last column."""
-    if points.shape[1] >= width:
-        return points
-    return np.concatenate([points, np.repeat(points[:, -1:], width - points.shape[1], axis=1)], axis=1)
