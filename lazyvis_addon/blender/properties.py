@@ -64,6 +64,12 @@ class LazyVisSceneSettings(bpy.types.PropertyGroup):
                                               "material the pixel covers, and how much of it: the jump at an "
                                               "object's outline comes from them, so few shaded samples are "
                                               "needed (0: off, the plain mean of the samples)")
+    aa_settle_tolerance: FloatProperty(name="Settle Tolerance", default=_DEFAULTS.aa_settle_tolerance, min=0.0,
+                                       soft_max=0.05, precision=4,
+                                       description="An edge pixel first shades 3 samples; when they agree with "
+                                                   "its centre within this fraction of its brightness and its "
+                                                   "filter covers one object, it stops there (0: always shade "
+                                                   "every Edge Sample)")
     aa_threshold: FloatProperty(name="Edge Threshold", default=_DEFAULTS.aa_threshold, min=0.0, soft_max=1.0,
                                 description="Relative brightness step between neighbouring pixels that "
                                             "marks an edge for anti-aliasing")

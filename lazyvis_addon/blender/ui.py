@@ -80,6 +80,7 @@ class LAZYVIS_RENDER_PT_integrator(LazyVisPanel, bpy.types.Panel):
         sub.active = props.aa_samples > 1
         sub.prop(props, "aa_coverage_rays")
         sub.prop(props, "aa_threshold")
+        sub.prop(props, "aa_settle_tolerance")
         layout.prop(props, "seed")
 
 

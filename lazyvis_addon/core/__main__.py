@@ -87,6 +87,9 @@ def build_parser() -> argparse.ArgumentParser:
                              "(1: pixel centres only)")
     parser.add_argument("--coverage-rays", type=int, default=defaults.aa_coverage_rays,
                         help="camera rays per edge pixel that only find the surface they see (0: off)")
+    parser.add_argument("--settle-tolerance", type=float, default=defaults.aa_settle_tolerance,
+                        help="an edge pixel whose 3 pilot samples agree with its centre within this fraction "
+                             "stops there (0: every edge sample)")
     parser.add_argument("--filter-width", type=float, default=defaults.filter_width,
                         help="pixel filter width in pixels, as Cycles' Film > Pixel Filter > Width")
     parser.add_argument("--filter-type", choices=FILTER_TYPES, default=defaults.filter_type)
@@ -117,6 +120,7 @@ def main(argv=None) -> int:
                             visibility=args.visibility,
                             shadow_rays=args.shadow_rays, verify_rays=args.verify_rays, mc_samples=args.samples,
                             aa_samples=args.edge_samples, aa_coverage_rays=args.coverage_rays,
+                            aa_settle_tolerance=args.settle_tolerance,
                             filter_width=args.filter_width,
                             filter_type=args.filter_type,
                             connectivity=args.connectivity, umbra_detection=not args.no_umbra, seed=args.seed,

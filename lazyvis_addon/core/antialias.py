@@ -235,7 +235,7 @@ def filter_rays(camera, pixels: np.ndarray, counts, first, settings: Settings, p
 
 
 def subpixel_samples(scene: Scene, tracer, extent: float, pixels: np.ndarray, settings: Settings,
-                     pixel_global: np.ndarray, samples=None, first: int = 0):
+                     pixel_global: np.ndarray, samples=None, first=0):
     """Camera samples of the chosen pixels placed by the pixel filter.
 
     Parameters
@@ -243,7 +243,7 @@ def subpixel_samples(scene: Scene, tracer, extent: float, pixels: np.ndarray, se
     pixels : (P,) int64          window-local pixels to supersample.
     samples : int or (P,) int64  samples per pixel (default ``settings.aa_samples``), stratified among
                                  themselves (each pixel's first 2^m samples form a net).
-    first : int                  index of the first sample (a later batch of samples for the same pixels).
+    first : int or (P,) int64    index of the first sample (a later batch of samples for the same pixels).
 
     Returns
     -------
@@ -350,6 +350,47 @@ def pixel_coverage(scene: Scene, tracer, pixels: np.ndarray, counts: np.ndarray,
     key, hit = np.concatenate(keys), np.concatenate(hits)
     pixel = key // stride
     return Coverage(pixel, key % stride - 1, hit / rays[pixel], stride, int(rays.sum()))
+
+
+# Shaded samples an edge pixel draws before the rest of its allocation (with coverage rays its centre is
+# one more): enough to tell whether anything varies under the pixel's filter at all.
+PILOT_SAMPLES = 3
+
+
+def settled_pixels(pilot_rgba: np.ndarray, pilot_counts: np.ndarray, centre_rgba: np.ndarray,
+                   one_surface: np.ndarray, tolerance: np.ndarray) -> np.ndarray:
+    """Which edge pixels need no samples beyond their pilot: (P,) bool.
+
+    The neighbour test (``refine_pixels``) looks at radiance one pixel apart, but the pixel's value only
+    depends on what lies under its filter. A pixel is settled when its filter covers one surface
+    (``one_surface``: the coverage rays, the pilot samples and the centre all see the same one) and every
+    pilot sample's RGBA is within ``tolerance`` of the centre's: then each of its samples, and so its
+    filtered value, is within ``tolerance`` of the centre's, whatever more samples would add. Under a
+    narrow filter (the sample .blends' 0.01 px) nearly every pixel settles; under Cycles' 1.5 px, those
+    on a smooth stretch of one surface do.
+
+    Parameters
+    ----------
+    pilot_rgba : (N, 4) float64     the pilot samples, pixel-major (``pilot_counts`` (P,) int64 each, >= 1).
+    centre_rgba : (P, 4) float64    each pixel's centre sample (pass 1).
+    one_surface : (P,) bool
+    tolerance : (P,) float64        largest deviation allowed, in the RGBA's units.
+    """
+    pilot_counts = np.asarray(pilot_counts, dtype=np.int64)
+    owner = np.repeat(np.arange(len(pilot_counts)), pilot_counts)
+    deviation = np.zeros(len(pilot_counts))
+    if len(owner):
+        np.maximum.at(deviation, owner, np.abs(pilot_rgba - centre_rgba[owner]).max(axis=1))
+    return one_surface & (pilot_counts > 0) & (deviation <= tolerance)
+
+
+def covers_one_surface(coverage: Coverage, centre_stratum: np.ndarray) -> np.ndarray:
+    """(P,) bool: the pixel's coverage rays (its shaded samples among them) all see its centre's surface."""
+    entries = np.bincount(coverage.pixel, minlength=len(centre_stratum))
+    first = np.searchsorted(coverage.pixel, np.arange(len(centre_stratum)))
+    only = coverage.stratum[np.minimum(first, max(len(coverage.stratum) - 1, 0))] if len(coverage.stratum) else \
+        np.full(len(centre_stratum), -2)
+    return (entries == 1) & (only == centre_stratum)
 
 
 def landing_pixels(position: np.ndarray) -> np.ndarray:

@@ -12,9 +12,9 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from .antialias import (allocate_samples, cull_to_samples, foreign_samples, inherit_blockers, landing_pixels,
-                        lattice_pixels, pixel_coverage, pool_samples, refine_pixels, sample_rgba,
-                        stratum_of, subpixel_samples, surface_strata)
+from .antialias import (PILOT_SAMPLES, allocate_samples, covers_one_surface, cull_to_samples, foreign_samples,
+                        inherit_blockers, landing_pixels, lattice_pixels, pixel_coverage, pool_samples,
+                        refine_pixels, sample_rgba, settled_pixels, stratum_of, subpixel_samples, surface_strata)
 from .blockers import BlockerPolygons
 from .blocker_map import BlockerMap, build_blocker_map, flood_fill, reference_blocker_map
 from .camera import camera_rays, planar_depth, window_pixels
@@ -172,7 +172,9 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
             covered = settings.aa_coverage_rays > 0
             # With coverage the pixel's centre, shaded already, is one of its samples.
             drawn = counts - 1 if covered else counts
-            rgba, position, triangle = _shade_samples(pixels, drawn, *shading)
+            drawn, rgba, position, triangle = _shade_until_settled(pixels, drawn, contrast, surface, radiance,
+                                                                   shading)
+            counts = drawn + 1 if covered else drawn
             stats["aa_samples_shaded"] = int(drawn.sum())
             if covered:
                 pooled = _pool_with_coverage(scene, tracer, surface, radiance, pixels, drawn, rgba, position, triangle,
@@ -414,15 +416,17 @@ def _shade_verified(surface: SurfacePoints, frames, polygons, tracer, blockers: 
 
 def _shade_samples(pixels: np.ndarray, counts: np.ndarray, scene: Scene, tracer, extent: float,
                    settings: Settings, pixel_global: np.ndarray, frames, polygons, progress: Progress, stats: dict,
-                   lazy_state, verify: bool, edges: MeshEdges | None = None
+                   lazy_state, verify: bool, edges: MeshEdges | None = None, first=0
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Shade ``counts`` (P,) anti-aliasing samples of each of ``pixels`` (P,).
 
     ``lazy_state`` is (outer_map, outer window, outer_surface) of the lazy integrators, None otherwise.
+    ``first`` (int or (P,)) is the index of each pixel's first sample in its sequence (a later batch).
     Returns (N, 4) RGBA, (N, 2) raster positions and (N,) triangles seen (-1: none) of the N = counts.sum()
     samples, pixel-major.
     """
-    sub, position, sub_global = subpixel_samples(scene, tracer, extent, pixels, settings, pixel_global, counts)
+    sub, position, sub_global = subpixel_samples(scene, tracer, extent, pixels, settings, pixel_global, counts,
+                                                 first)
     landing = landing_pixels(position)
     if lazy_state is not None:
         outer_map, outer, outer_surface = lazy_state
@@ -443,6 +447,59 @@ def _shade_samples(pixels: np.ndarray, counts: np.ndarray, scene: Scene, tracer,
         sub_radiance, _, _ = _illuminate(sub, frames, polygons, tracer, sub_map, settings, sub_global,
                                          progress, scene.materials, edges=edges)
     return sample_rgba(sub_radiance, sub, scene, settings), position, sub.index_triangle
+
+
+def _shade_until_settled(pixels: np.ndarray, drawn: np.ndarray, contrast: np.ndarray, surface: SurfacePoints,
+                         radiance: np.ndarray, shading: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Shade the anti-aliasing samples of ``pixels`` (P,): a pilot of ``PILOT_SAMPLES`` each, then the rest
+    of ``drawn`` (P,) only where the pilot has not settled (``antialias.settled_pixels``).
+
+    ``contrast`` (P,) is each pixel's radiance step to its neighbours, ``surface`` and ``radiance`` (H * W, 3)
+    pass 1's centres over the window, ``shading`` the arguments ``_shade_samples`` takes after the counts.
+    Returns the samples drawn per pixel (P,) int64 and ``_shade_samples``' RGBA, positions and triangles of
+    them, pixel-major: each pixel's pilot, then its further samples (the next points of its sequence).
+    """
+    scene, tracer, settings, pixel_global, stats = shading[0], shading[1], shading[3], shading[4], shading[8]
+    pilot = np.minimum(drawn, PILOT_SAMPLES) if settings.aa_settle_tolerance > 0 else drawn
+    rgba, position, triangle = _shade_samples(pixels, pilot, *shading)
+    rest = drawn - pilot
+    if not rest.any():
+        return drawn, rgba, position, triangle
+    strata = surface_strata(scene)
+    centre = surface.take(pixels)
+    centre_rgba = sample_rgba(radiance[pixels], centre, scene, settings)
+    centre_stratum = stratum_of(centre.index_triangle, strata)
+    pilot_stratum = stratum_of(triangle, strata)
+    if settings.aa_coverage_rays > 0:
+        one_surface = covers_one_surface(pixel_coverage(scene, tracer, pixels, pilot, pilot_stratum, strata,
+                                                        settings, pixel_global), centre_stratum)
+    else:
+        owner = np.repeat(np.arange(len(pixels)), pilot)
+        one_surface = np.bincount(owner, weights=pilot_stratum != centre_stratum[owner], minlength=len(pixels)) == 0
+    scale = np.maximum(np.abs(centre_rgba[:, :3]).max(axis=1), contrast)
+    more = ~settled_pixels(rgba, pilot, centre_rgba, one_surface, settings.aa_settle_tolerance * scale) & (rest > 0)
+    stats["aa_settled_pixels"] = stats.get("aa_settled_pixels", 0) + int((~more).sum())
+    if not more.any():
+        return pilot, rgba, position, triangle
+    extra = _shade_samples(pixels[more], rest[more], *shading, first=pilot[more])
+    final = np.where(more, drawn, pilot)
+    start = np.cumsum(final) - final
+    added = np.zeros(len(pixels), np.int64)
+    added[more] = rest[more]
+    pilot_rows = np.repeat(start, pilot) + _ranks(pilot)
+    extra_rows = np.repeat(start + pilot, added) + _ranks(added)
+    merged = []
+    for first_part, second_part in zip((rgba, position, triangle), extra):  # three arrays
+        out = np.empty((int(final.sum()),) + first_part.shape[1:], first_part.dtype)
+        out[pilot_rows], out[extra_rows] = first_part, second_part
+        merged.append(out)
+    return (final, *merged)
+
+
+def _ranks(counts: np.ndarray) -> np.ndarray:
+    """(counts.sum(),) int64: 0 .. counts[i] - 1 for each i in turn."""
+    counts = np.asarray(counts, dtype=np.int64)
+    return np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
 
 
 def _pool_with_coverage(scene: Scene, tracer, surface: SurfacePoints, radiance: np.ndarray, pixels: np.ndarray,

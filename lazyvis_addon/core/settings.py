@@ -70,6 +70,12 @@ class Settings:
         many: on the fence bench 2 samples with 16 coverage rays err 3x less than 2 samples alone.
         A pixel gets at least 4 coverage rays per shaded sample (``antialias.COVERAGE_RAYS_PER_SAMPLE``),
         its samples among them; 0 turns coverage off (the filtered mean of the samples alone).
+    aa_settle_tolerance : float
+        An edge pixel first shades ``antialias.PILOT_SAMPLES`` of its samples; when those, its centre and
+        its coverage rays see one surface and every pilot sample is within this fraction of the pixel's
+        scale (the larger of its centre's brightest channel and its step to a neighbour) of the centre,
+        the pixel keeps the pilot (its error is then below that fraction) and draws no more
+        (``antialias.settled_pixels``). 0 shades every allocated sample.
     filter_width : float
         Pixel filter width in pixels, Cycles' Film > Pixel Filter > Width (``scene.cycles.filter_width``;
         1.5 default): the Blackman-Harris window's radius.
@@ -118,6 +124,7 @@ class Settings:
     extend_fill: bool = False
     aa_samples: int = 16
     aa_coverage_rays: int = 16
+    aa_settle_tolerance: float = 1e-3
     filter_width: float = 1.5
     filter_type: str = "BLACKMAN_HARRIS"
     aa_threshold: float = 0.1
@@ -146,8 +153,8 @@ class Settings:
                 raise ValueError(f"{name} must be a non-negative integer, not {value!r}")
         if self.filter_type not in FILTER_TYPES:
             raise ValueError(f"filter_type must be one of {', '.join(FILTER_TYPES)}, not {self.filter_type!r}")
-        if not (self.filter_width > 0 and self.aa_threshold >= 0):
-            raise ValueError("filter_width must be positive and aa_threshold non-negative")
+        if not (self.filter_width > 0 and self.aa_threshold >= 0 and self.aa_settle_tolerance >= 0):
+            raise ValueError("filter_width must be positive, aa_threshold and aa_settle_tolerance non-negative")
         for name in ("shadow_rays", "mc_samples", "pixel_batch", "aa_samples"):
             value = getattr(self, name)
             if not isinstance(value, int) or value < 1:

@@ -52,7 +52,7 @@ def test_render_panels_draw_scene_properties(scene):
     for name in ("integrator", "glossy_integrator", "visibility",
                  "shadow_rays", "mc_samples", "seed", "connectivity", "umbra_detection",
                  "window_margin", "merge_quads", "disk_vertices", "film_transparent", "pixel_filter_type", "filter_width",
-                 "aa_samples", "aa_coverage_rays", "aa_threshold", "memory_budget_mb", "pixel_batch", "threads_mode", "threads",
+                 "aa_samples", "aa_coverage_rays", "aa_threshold", "aa_settle_tolerance", "memory_budget_mb", "pixel_batch", "threads_mode", "threads",
                  "use_pass_z", "use_pass_normal", "use_pass_blocker_count", "use_pass_sample_count"):
         assert name in drawn
 
