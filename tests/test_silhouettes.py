@@ -154,3 +154,38 @@ def test_mesh_edges_pair_faces_and_keep_boundaries():
     quad = MeshEdges.from_triangles(quad_triangles([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)]))
     faces = (quad.triangle >= 0).sum(axis=1)
     assert len(quad) == 5 and sorted(faces.tolist()) == [1, 1, 1, 1, 2]
+
+
+def fan_area(couple, start, end, sign, reference, n_couples):
+    """Signed area per couple of the fans (R, start, end), all directions on the plane z = 1."""
+    r = reference[couple]
+    cross = (start[:, 0] - r[:, 0]) * (end[:, 1] - r[:, 1]) - (start[:, 1] - r[:, 1]) * (end[:, 0] - r[:, 0])
+    return np.bincount(couple, weights=0.5 * sign * cross, minlength=n_couples)
+
+
+def test_arrangement_kernel_on_hand_made_arcs():
+    """The compiled arrangement (``arrangement.visible_fans``) on directions in the plane z = 1: a square
+    light [-1, 1]^2 with R at (0.3, 0.4). Couple 0: one arc along y = 0 hides the half below it (jump +1
+    away from R): visible area 2 of 4. Couple 1: the same arc and a second along x = 0.5 hiding x > 0.5
+    (another +1): visible [-1, 0.5] x [0, 1], area 1.5, and where both hide D = 2. Couple 2: no arc
+    reaches it and D(R) = 1: nothing visible. (A jump's sign is the change of D crossing its arc away from
+    R's side.)"""
+    from lazyvis_addon.core.arrangement import visible_fans
+    square = np.array([[-1.0, -1.0, 1.0], [1.0, -1.0, 1.0], [1.0, 1.0, 1.0], [-1.0, 1.0, 1.0]])
+    light_dirs = np.repeat(square[None], 3, axis=0)
+    reference = np.repeat([[0.3, 0.4, 1.0]], 3, axis=0)
+
+    def arc(couple, a, b, jump):
+        a, b = np.asarray(a, float), np.asarray(b, float)
+        normal = np.cross(a, b)
+        return couple, a, b, normal, jump
+
+    rows = [arc(0, (-2, 0, 1), (2, 0, 1), 1), arc(1, (-2, 0, 1), (2, 0, 1), 1), arc(1, (0.5, -2, 1), (0.5, 2, 1), 1)]
+    arcs = silhouettes.Arcs(np.array([r[0] for r in rows]), np.array([r[1] for r in rows]),
+                            np.array([r[2] for r in rows]), np.array([r[3] for r in rows]),
+                            np.full(3, 0.25), np.full(3, 0.75), np.array([r[4] for r in rows]))
+    couple, start, end, sign, whole, inconsistent = visible_fans(arcs, light_dirs, np.full(3, 4), reference,
+                                                                 np.array([0, 0, 1]))
+    area = fan_area(couple, start, end, sign, reference, 3) + 4.0 * whole
+    np.testing.assert_allclose(area, [2.0, 1.5, 0.0], atol=1e-12)
+    assert inconsistent == 0 and not whole[2]

@@ -24,7 +24,7 @@ from .bsdf import SurfaceBsdf
 from .geometry import light_groups
 from .illumination import (VisiblePieces, couple_weights, couples_for, reflected_radiance, standard_mc,
                            verify_visible, visible_pieces)
-from .silhouettes import MeshEdges, row_batch_for, silhouette_pieces
+from .silhouettes import MeshEdges, compile_kernels, row_batch_for, silhouette_pieces
 from .progress import Progress
 from .scene import Scene
 from .settings import Settings
@@ -102,6 +102,11 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
         edges = MeshEdges.from_triangles(scene.triangles, frames)
         progress.end_stage()
         stats["edge_records"] = len(edges)
+        # Numba compiles pass 2's kernels on a machine's first render (about 10 s), then its cache serves
+        # them in milliseconds: a stage of its own, so the wait is named and timed.
+        progress.begin_stage("Compiling kernels")
+        stats["kernels_compiled"] = compile_kernels()
+        progress.end_stage()
     elif lazy:
         # Pass 1 runs over the window grown by a margin; pass 2 shades only the window.
         outer = _grown_window(camera, settings.window_margin)

@@ -14,9 +14,10 @@ rim). So, per (receiver, light) couple:
 2. **Arcs.** Per couple, the edges whose jump is not 0 (``_couple_arcs``), clipped to the part in front of
    the light's plane; their range inside the light's cone is kept.
 3. **One reference depth.** D at one interior point R of the light, counted by a ray (``depth_counts``).
-4. **The arrangement.** The arcs split each other and the light's edges into pieces; D on each side of a
-   piece is D(R) plus the jumps of the arcs that the arc from R to the piece's midpoint crosses. A piece
-   with D = 0 on exactly one side (or a light edge piece with D = 0 inside) bounds the visible region.
+4. **The arrangement** (``arrangement``, compiled). The arcs split each other and the light's edges into
+   pieces; D on each side of a piece is D(R) plus the jumps of the arcs that the arc from R to the
+   piece's midpoint crosses. A piece with D = 0 on exactly one side (or a light edge piece with D = 0
+   inside) bounds the visible region.
 5. **Signed fans.** The visible region is the signed sum of the triangles (R, piece start, piece end):
    +1 where the visible side faces R, -1 otherwise (a winding-number identity), returned as
    ``VisiblePieces`` with signs, on which Lambert's formula and the analytic glossy lobes, integrals linear
@@ -26,7 +27,8 @@ The cost of a couple follows the arcs crossing its light (S of them: O(S²) for 
 triangles behind them: a dense smooth mesh shows a few silhouette arcs where the old pass 2 subtracted
 hundreds of triangles. Laine et al., *Soft Shadow Volumes for Ray Tracing* (SIGGRAPH 2005), count depth
 complexity from silhouette edges per light sample; here the region comes out exactly, in closed form.
-Everything runs on array batches: the loops are over tree levels, batches and a handful of light edges.
+Detection and arcs run on array batches (the loops are over tree levels, batches and a handful of light
+edges); the arrangement, nested loops over a couple's arcs, is a Numba kernel.
 """
 
 from __future__ import annotations
@@ -36,6 +38,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import arcs as arcs_module, arrangement as arrangement_module, detection as detection_module
+from .arcs import ON_BOUNDARY, SIGN_EPS, compile_rows, test_rows
+from .arrangement import compile_arrangement, jumps_between, visible_fans
+from .detection import compile_walk, may_be_silhouette, walk_tree
 from .blockers import _rank_within, _unique_points
 from .geometry import PLANE_EPS, LightFrames, ReceiverLight, clip_convex, cross3, trim
 from .illumination import _pad_to
@@ -54,8 +60,6 @@ ROW_BATCH = 1 << 18
 ROW_BYTES = 1024
 # Fewer rows per batch than this and per-batch overheads would dominate: the budget is too small.
 MIN_ROW_BATCH = 4096
-# Arc pairs per array batch of the arrangement.
-PAIR_BATCH = 1 << 20
 # A couple crossed by more arcs than this is cut into a grid of cells of about CELL_TARGET arcs each
 # (at most MAX_GRID x MAX_GRID): the arrangement costs the square of the arcs per region.
 CELL_ARCS = 48
@@ -65,8 +69,6 @@ MAX_GRID = 24
 DEPTH_ROUNDS = 64
 # Vertices this close (relative to the scene's coordinates) are welded into one for the edge records.
 WELD_EPS = 1e-10
-# Relative tolerance of the sign tests (a third vertex this close to an arc's plane lies on it).
-SIGN_EPS = 1e-12
 
 
 @dataclass
@@ -283,52 +285,10 @@ def candidate_edges(edges: MeshEdges, frames: LightFrames, group_low: np.ndarray
     scale = np.abs(high).max(axis=1) + np.abs(low).max(axis=1)
     eps = PLANE_EPS * scale
 
-    def in_slab(q, box_low, box_high):
-        """Some point of the boxes lies in front of the light's plane and not above every receiver."""
-        w = toward[q]
-        top = np.where(w > 0, box_high, box_low)
-        bottom = np.where(w > 0, box_low, box_high)
-        height_max = np.einsum("nk,nk->n", w, top) - base[q]
-        height_min = np.einsum("nk,nk->n", w, bottom) - base[q]
-        return (height_max > eps[q]) & (height_min < query_height[q])
-
     side_normal, side_offset, side_valid = _side_planes(frames, query_light, query_side, group_low[query_group],
                                                         group_high[query_group])
-
-    def overlaps(q, box_low, box_high, sides=True):
-        ok = (box_low <= high[q]).all(axis=1) & (box_high >= low[q]).all(axis=1)
-        if not sides:
-            return ok
-        rows = np.flatnonzero(ok)
-        q, box_low, box_high = q[rows], box_low[rows], box_high[rows]
-        # The lowest value of each side plane over the box, all four at once: (N, 4).
-        n = side_normal[q]
-        lowest = np.einsum("nsk,nsk->ns", n, np.where(n > 0, box_low[:, None], box_high[:, None]))
-        ok[rows] = ~(side_valid[q] & (lowest > side_offset[q] + eps[q][:, None])).any(axis=1)
-        return ok
-
-    n_leaves = edges.n_leaves
-    query = np.arange(len(query_group))
-    node = np.zeros(len(query), np.int64)
-    while True:  # tree levels
-        ok = overlaps(query, edges.node_low[node], edges.node_high[node])
-        ok &= in_slab(query, edges.node_low[node], edges.node_high[node])
-        query, node = query[ok], node[ok]
-        if len(node) == 0 or node[0] >= n_leaves - 1:
-            break
-        query = np.repeat(query, 2)
-        node = (2 * np.repeat(node, 2) + 1) + np.tile([0, 1], len(node))
-    leaf = node - (n_leaves - 1)
-    query = np.repeat(query, LEAF_EDGES)
-    record = (leaf[:, None] * LEAF_EDGES + np.arange(LEAF_EDGES)[None, :]).ravel()
-    inside = record < len(edges)
-    query, record = query[inside], record[inside]
-    ok = (edges.light[record] < 0) | (edges.light[record] == query_light[query])
-    ok &= overlaps(query, edges.low[record], edges.high[record])
-    ok &= in_slab(query, edges.low[record], edges.high[record])
-    query, record = query[ok], record[ok]
-    ok = _may_be_silhouette(edges, record, group_low[query_group[query]], group_high[query_group[query]])
-    return query[ok], record[ok]
+    return walk_tree(edges, LEAF_EDGES, low, high, toward, base, eps, query_height, side_normal, side_offset,
+                     side_valid, query_light, group_low[query_group], group_high[query_group])
 
 
 def _side_planes(frames: LightFrames, light: np.ndarray, side: np.ndarray, box_low: np.ndarray,
@@ -364,24 +324,6 @@ def _side_planes(frames: LightFrames, light: np.ndarray, side: np.ndarray, box_l
         offsets.append(np.einsum("qk,qk->q", normal, point))
         valids.append(valid)
     return np.stack(normals, axis=1), np.stack(offsets, axis=1), np.stack(valids, axis=1)
-
-
-def _may_be_silhouette(edges: MeshEdges, record: np.ndarray, box_low: np.ndarray, box_high: np.ndarray
-                       ) -> np.ndarray:
-    """False only where the edge's jump is 0 at every point of the box: each of its faces' planes leaves
-    the whole box on one side (signs at the 8 corners agree) and those sides cancel."""
-    a = edges.start[record]
-    normal = edges.face_normal[record]                                       # (N, K, 3), 0 for padding
-    centre, half = (box_low + box_high) * 0.5, (box_high - box_low) * 0.5
-    value = np.einsum("nkd,nd->nk", normal, a - centre)                     # the function at the centre
-    spread = np.einsum("nkd,nd->nk", np.abs(normal), half)                  # its range over the box
-    size = np.linalg.norm(normal, axis=2) * (np.abs(a - centre).max(axis=1) + half.max(axis=1))[:, None]
-    tolerance = SIGN_EPS * size
-    fixed = np.abs(value) > spread + tolerance
-    jump = np.where(fixed, np.sign(value), 0.0).sum(axis=1)
-    cut_segment = edges.light[record] >= 0
-    # Cut segments count only their vertex in front of the light: keep them (they are few).
-    return ~fixed.all(axis=1) | (jump != 0) | cut_segment
 
 
 # ------------------------------------------------------------------------------------------------------
@@ -438,54 +380,9 @@ def couple_arcs(edges: MeshEdges, frames: LightFrames, couples: ReceiverLight, p
     reference : (Nc, 3)          direction from the receiver to the reference point R.
     couple, record : (N,) int64  the rows.
     """
-    x = position[couple]
-    # Which side of the plane through x and the edge each face's third vertex lies on: the sign of
-    # det(a - x, b - x, c - x) = m . (a - x), with the face's normal m = (b - a) x (c - a) stored per record.
-    face_normal = edges.face_normal[record]
-    value = edges.face_offset[record] - np.einsum("nkd,nd->nk", face_normal, x)
-    reach = np.abs(edges.start[record] - x).max(axis=1)
-    sign = np.where(np.abs(value) > SIGN_EPS * edges.face_size[record] * reach[:, None], np.sign(value), 0.0)
-    sign[edges.triangle[record] == own_triangle[couple][:, None]] = 0.0
-    cut_rows = np.flatnonzero(edges.light[record] >= 0)
-    if len(cut_rows):  # a cut segment's vertex behind the light (from the receiver's side) is clipped away
-        light = couples.light[couple[cut_rows]]
-        away = couples.side[couple[cut_rows]][:, None] * np.einsum(
-            "nkd,nd->nk", edges.third[record[cut_rows]] - frames.origin[light][:, None], frames.normal[light])
-        sign[cut_rows] = np.where(away > 0, sign[cut_rows], 0.0)
-    total = sign.sum(axis=1)
-    rows = np.flatnonzero(total != 0)
-    couple, record, x, total = couple[rows], record[rows], x[rows], total[rows]
-    light = couples.light[couple]
-    side = couples.side[couple]
-    a = edges.start[record] - x
-    b = edges.end[record] - x
-    normal = cross3(a, b)
-    reference_side = np.einsum("nk,nk->n", normal, reference[couple])
-    jump = (-np.where(reference_side >= 0, 1.0, -1.0) * total).astype(np.int64)
-    # Front part: height above the light's plane (on the receiver's side) > eps.
-    height_a = side * (np.einsum("nk,nk->n", a + x - frames.origin[light], frames.normal[light]))
-    height_b = side * (np.einsum("nk,nk->n", b + x - frames.origin[light], frames.normal[light]))
-    scale = np.sqrt(frames.area[light]) + np.abs(a).max(axis=1) + np.abs(b).max(axis=1)
-    eps = PLANE_EPS * scale
-    front_a, front_b = height_a > eps, height_b > eps
-    keep = front_a | front_b
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t_plane = (height_a - eps) / (height_a - height_b)
-    cut = keep & (front_a != front_b)
-    t_plane = np.where(cut, t_plane, 0.0)
-    new_a = np.where((cut & ~front_a)[:, None], a + t_plane[:, None] * (b - a), a)
-    new_b = np.where((cut & ~front_b)[:, None], a + t_plane[:, None] * (b - a), b)
-    a, b = new_a, new_b
-    # Quick rejection by the light's bounding quad: both ends beyond one of its cone's planes.
-    va = np.einsum("nvk,nk->nv", bound[couple], a)
-    vb = np.einsum("nvk,nk->nv", bound[couple], b)
-    near = keep & ~((va < 0) & (vb < 0)).any(axis=1)
-    rows = np.flatnonzero(near)
-    couple, light, side, a, b, jump = couple[rows], light[rows], side[rows], a[rows], b[rows], jump[rows]
-    normal = cross3(a, b)
-    enter, leave, ok = _cone_range(a, b, normal, cone[couple], cone_valid[couple], -side[:, None] * frames.normal[light])
-    rows = np.flatnonzero(ok)
-    return Arcs(couple[rows], a[rows], b[rows], normal[rows], enter[rows], leave[rows], jump[rows])
+    couple, start, end, normal, enter, leave, jump = test_rows(edges, frames, couples, position, own_triangle, cone,
+                                                               cone_valid, bound, reference, couple, record)
+    return Arcs(couple, start, end, normal, enter, leave, jump)
 
 
 def _cone_range(a: np.ndarray, b: np.ndarray, normal: np.ndarray, planes: np.ndarray, valid: np.ndarray,
@@ -496,7 +393,7 @@ def _cone_range(a: np.ndarray, b: np.ndarray, normal: np.ndarray, planes: np.nda
     unit = normal / np.maximum(np.linalg.norm(normal, axis=1), 1e-300)[:, None]
     # An arc along the light's edge (an edge of the receiver's own face lies in the horizon that clipped
     # the light) never crosses the inside: its jump happens on the boundary.
-    on_boundary = (valid & (np.abs(np.einsum("nvk,nk->nv", planes, unit)) > 1.0 - 1e-13)).any(axis=1)
+    on_boundary = (valid & (np.abs(np.einsum("nvk,nk->nv", planes, unit)) > ON_BOUNDARY)).any(axis=1)
     va = np.einsum("nvk,nk->nv", planes, a)
     vb = np.einsum("nvk,nk->nv", planes, b)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -540,179 +437,6 @@ def cone_of_light(directions: np.ndarray, count: np.ndarray) -> tuple[np.ndarray
     valid = (np.arange(directions.shape[1])[None, :] < count[:, None]) & \
         (np.einsum("nvk,nvk->nv", planes, planes) > 0)
     return planes, valid
-
-
-# ------------------------------------------------------------------------------------------------------
-# The arrangement
-# ------------------------------------------------------------------------------------------------------
-
-def _within(point: np.ndarray, start: np.ndarray, end: np.ndarray, normal: np.ndarray, slack: float = 0.0
-            ) -> np.ndarray:
-    """(N,) bool: ``point`` (on the great circle of the arc start -> end, plane ``normal``) lies on the arc,
-    the arc grown at both ends by ``slack`` (radians, about)."""
-    if slack == 0.0:
-        return (np.einsum("nk,nk->n", cross3(start, point), normal) > 0) & \
-            (np.einsum("nk,nk->n", cross3(point, end), normal) > 0)
-    size = np.linalg.norm(point, axis=1) * np.linalg.norm(normal, axis=1)
-    return (np.einsum("nk,nk->n", cross3(start, point), normal) > -slack * size * np.linalg.norm(start, axis=1)) & \
-        (np.einsum("nk,nk->n", cross3(point, end), normal) > -slack * size * np.linalg.norm(end, axis=1))
-
-
-# Where pieces are split, arcs count as a little longer than they are: an arc that ends on another arc
-# or on the light's edge (a silhouette chain running into the receiver's own face, which lies in the
-# horizon that clipped the light) must split it there. A split where no arc reaches is harmless: both
-# parts are classified by their own depths.
-SPLIT_SLACK = 1e-6
-
-
-def _pair_batches(group: np.ndarray, other_start: np.ndarray, other_count: np.ndarray, batch: int):
-    """(item, other) pairs of items with ``group`` (N,) and the others of their group (group g's others
-    are other_start[g] .. other_start[g] + other_count[g] - 1), yielded in batches of about ``batch``."""
-    count = other_count[group]
-    bounds = np.concatenate([[0], np.cumsum(count)])
-    cuts = np.unique(np.minimum(np.searchsorted(bounds, np.arange(0, bounds[-1] + batch, batch)), len(count)))
-    for lo, hi in zip(cuts[:-1], cuts[1:]):  # batches of pairs
-        size = count[lo:hi]
-        item = np.repeat(np.arange(lo, hi), size)
-        offset = np.arange(len(item)) - np.repeat(np.cumsum(size) - size, size)
-        yield item, other_start[group[item]] + offset
-
-
-def _straddles(va: np.ndarray, vb: np.ndarray) -> np.ndarray:
-    return ((va < 0) & (vb > 0)) | ((va > 0) & (vb < 0))
-
-
-def _crosses(arcs: Arcs, j: np.ndarray, origin: np.ndarray, target: np.ndarray, origin_value: np.ndarray,
-             target_value: np.ndarray) -> np.ndarray:
-    """(N,) bool: the arc from ``origin`` to ``target`` (N, 3) crosses arc ``j`` (N,), given the values of
-    arc j's plane at both ends (which side each is on: the caller's, so that every use agrees)."""
-    straddle = _straddles(origin_value, target_value)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.where(straddle, origin_value / (origin_value - target_value), 0.0)
-    point = origin + s[:, None] * (target - origin)
-    return straddle & _within(point, arcs.start[j], arcs.end[j], arcs.normal[j])
-
-
-def _split_pieces(carrier: np.ndarray, split_t: np.ndarray, low: np.ndarray, high: np.ndarray):
-    """Pieces of carriers (segments) cut at parameters ``split_t`` (with carrier ``carrier``), each carrier
-    c running from low[c] to high[c]: (carrier, t0, t1) of every piece longer than rounding."""
-    n = len(low)
-    carrier = np.concatenate([carrier, np.arange(n), np.arange(n)])
-    split_t = np.concatenate([split_t, low, high])
-    order = np.lexsort((split_t, carrier))
-    carrier, split_t = carrier[order], split_t[order]
-    same = carrier[1:] == carrier[:-1]
-    piece, t0, t1 = carrier[:-1][same], split_t[:-1][same], split_t[1:][same]
-    long_enough = t1 > t0 + 1e-14
-    return piece[long_enough], t0[long_enough], t1[long_enough]
-
-
-def visible_fans(arcs: Arcs, light_dirs: np.ndarray, light_count: np.ndarray, reference: np.ndarray,
-                 depth: np.ndarray, pair_batch: int = PAIR_BATCH):
-    """The visible region of each couple as signed triangles (R, p, q) of directions.
-
-    Parameters
-    ----------
-    arcs : Arcs sorted by couple; light_dirs : (Nc, V, 3) the clipped light's vertices minus the receiver
-    (padded), light_count : (Nc,); reference : (Nc, 3) direction to R; depth : (Nc,) int64 D(R).
-
-    Returns
-    -------
-    couple : (M,) int64, start, end : (M, 3) directions of each boundary piece, sign : (M,) float64;
-    whole : (Nc,) bool  the light polygon itself joins the couple's terms with sign +1 (then the pieces
-                        are the hidden region's boundary, subtracted: fewer than the visible light edges);
-    inconsistent : int  couples where D came out negative somewhere (rounding in nearly parallel arcs, or a
-                        short reference depth); D <= 0 counts as visible there.
-
-    Which side of an arc's plane a piece lies on is interpolated from its carrier's end values, which also
-    decided where the carrier was split, so the two decisions agree; splits take arcs a little longer
-    (``SPLIT_SLACK``), so that an arc ending on another splits it.
-    """
-    n_couples = len(depth)
-    arcs_of = np.bincount(arcs.couple, minlength=n_couples)
-    first_arc = np.cumsum(arcs_of) - arcs_of
-    # Arc pieces: each arc split where another crosses it, inside its cone range.
-    split_arc, split_t = [], []
-    for i, j in _pair_batches(arcs.couple, first_arc, arcs_of, pair_batch):
-        mine = i != j
-        i, j = i[mine], j[mine]
-        va = np.einsum("nk,nk->n", arcs.normal[j], arcs.start[i])
-        vb = np.einsum("nk,nk->n", arcs.normal[j], arcs.end[i])
-        straddle = _straddles(va, vb)
-        i, j, va, vb = i[straddle], j[straddle], va[straddle], vb[straddle]
-        t = va / (va - vb)
-        point = arcs.start[i] + t[:, None] * (arcs.end[i] - arcs.start[i])
-        cross = _within(point, arcs.start[j], arcs.end[j], arcs.normal[j], SPLIT_SLACK)
-        cross &= (t > arcs.enter[i]) & (t < arcs.leave[i])
-        split_arc.append(i[cross])
-        split_t.append(t[cross])
-    piece_arc, t0, t1 = _split_pieces(np.concatenate(split_arc) if split_arc else np.zeros(0, np.int64),
-                                      np.concatenate(split_t) if split_t else np.zeros(0), arcs.enter, arcs.leave)
-    # Light edge pieces: each edge of the light split by the arcs.
-    width = light_dirs.shape[1]
-    edge_couple = np.repeat(np.arange(n_couples), width)
-    edge_k = np.tile(np.arange(width), n_couples)
-    real = edge_k < light_count[edge_couple]
-    edge_couple, edge_k = edge_couple[real], edge_k[real]
-    next_k = np.where(edge_k + 1 < light_count[edge_couple], edge_k + 1, 0)
-    l_start, l_end = light_dirs[edge_couple, edge_k], light_dirs[edge_couple, next_k]
-    split_edge, split_u = [], []
-    for e, j in _pair_batches(edge_couple, first_arc, arcs_of, pair_batch):
-        va = np.einsum("nk,nk->n", arcs.normal[j], l_start[e])
-        vb = np.einsum("nk,nk->n", arcs.normal[j], l_end[e])
-        straddle = _straddles(va, vb)
-        e, j, va, vb = e[straddle], j[straddle], va[straddle], vb[straddle]
-        u = va / (va - vb)
-        point = l_start[e] + u[:, None] * (l_end[e] - l_start[e])
-        cross = _within(point, arcs.start[j], arcs.end[j], arcs.normal[j], SPLIT_SLACK)
-        split_edge.append(e[cross])
-        split_u.append(u[cross])
-    n_edges = len(edge_couple)
-    lp_edge, u0, u1 = _split_pieces(np.concatenate(split_edge) if split_edge else np.zeros(0, np.int64),
-                                    np.concatenate(split_u) if split_u else np.zeros(0), np.zeros(n_edges),
-                                    np.ones(n_edges))
-    # Every piece on its carrier segment: start, end, and the parameters of the piece's ends.
-    n_arc_pieces = len(piece_arc)
-    carrier_start = np.concatenate([arcs.start[piece_arc], l_start[lp_edge]])
-    carrier_end = np.concatenate([arcs.end[piece_arc], l_end[lp_edge]])
-    t0, t1 = np.concatenate([t0, u0]), np.concatenate([t1, u1])
-    piece_couple = np.concatenate([arcs.couple[piece_arc], edge_couple[lp_edge]])
-    piece_own = np.concatenate([piece_arc, np.full(len(lp_edge), -1)])
-    t_mid = 0.5 * (t0 + t1)
-    mid = carrier_start + t_mid[:, None] * (carrier_end - carrier_start)
-    # Depth on the reference point's side of each piece: D(R) plus the jumps of the arcs that the arc
-    # from R to the piece's midpoint crosses (not the piece's own arc).
-    reference_value = np.einsum("nk,nk->n", arcs.normal, reference[arcs.couple])         # per arc
-    d_near = depth[piece_couple].astype(np.int64)
-    for p, j in _pair_batches(piece_couple, first_arc, arcs_of, pair_batch):
-        keep = j != piece_own[p]
-        p, j = p[keep], j[keep]
-        va = np.einsum("nk,nk->n", arcs.normal[j], carrier_start[p])
-        vb = np.einsum("nk,nk->n", arcs.normal[j], carrier_end[p])
-        value = (1.0 - t_mid[p]) * va + t_mid[p] * vb
-        hit = _crosses(arcs, j, reference[piece_couple[p]], mid[p], reference_value[j], value)
-        d_near += np.bincount(p[hit], weights=arcs.jump[j[hit]], minlength=len(piece_couple)).astype(np.int64)
-    d_far = d_near.copy()
-    d_far[:n_arc_pieces] += arcs.jump[piece_arc]
-    low = np.zeros(n_couples, np.int64)
-    np.minimum.at(low, piece_couple, np.minimum(d_near, d_far))
-    inconsistent = int((low < 0).sum())
-    seen_near, seen_far = d_near <= 0, d_far <= 0
-    is_arc = np.arange(len(piece_couple)) < n_arc_pieces
-    # Per couple: the visible light edge pieces (+1), or the whole light and the hidden ones (-1),
-    # whichever is fewer.
-    light_piece = ~is_arc
-    visible_edges = np.bincount(piece_couple[light_piece & seen_near], minlength=n_couples)
-    hidden_edges = np.bincount(piece_couple[light_piece & ~seen_near], minlength=n_couples)
-    whole = (hidden_edges + 1 < visible_edges) & (arcs_of > 0)
-    whole_piece = whole[piece_couple]
-    bounds = np.where(is_arc, seen_near != seen_far, seen_near != whole_piece)
-    sign = np.where(is_arc, np.where(seen_near, 1.0, -1.0), np.where(whole_piece, -1.0, 1.0))
-    rows = np.flatnonzero(bounds)
-    seg = carrier_end[rows] - carrier_start[rows]
-    start = carrier_start[rows] + t0[rows, None] * seg
-    end = carrier_start[rows] + t1[rows, None] * seg
-    return piece_couple[rows], start, end, sign[rows], whole, inconsistent
 
 
 # ------------------------------------------------------------------------------------------------------
@@ -763,6 +487,18 @@ def depth_counts(tracer, origin: np.ndarray, target: np.ndarray, own_triangle: n
 _REFERENCE_WEIGHTS = 1.0 + np.modf(np.arange(1, 257) * 0.6180339887498949 + 0.1234567)[0]
 
 
+def compile_kernels() -> bool:
+    """Make pass 2's compiled kernels ready: Numba compiles them on a machine's first render (about 10 s
+    here) and writes them to its cache (``__pycache__`` beside the modules, or a per-user folder where that
+    is read-only); afterwards this loads them in milliseconds. Returns whether any had to be compiled."""
+    compile_walk()
+    compile_rows()
+    compile_arrangement()
+    kernels = (detection_module._walk, detection_module._may_be_silhouettes, arcs_module._rows,
+               arrangement_module._fans, arrangement_module._jumps)
+    return any(kernel.stats.cache_misses for kernel in kernels)
+
+
 def row_batch_for(memory_budget_mb: float, threads: int) -> int:
     """Rows per arc-test batch that keep every thread's temporaries within a quarter of the budget.
 
@@ -797,21 +533,6 @@ def _most_common(values: np.ndarray) -> np.ndarray:
     counts = (values[:, :, None] == values[:, None, :]).sum(axis=2)             # (N, K) occurrences
     best = counts.max(axis=1, keepdims=True)
     return np.where(counts == best, values, np.iinfo(np.int64).min).max(axis=1)
-
-
-def _jumps_between(arcs: Arcs, reference: np.ndarray, region: np.ndarray, target: np.ndarray, n_regions: int,
-                   pair_batch: int = PAIR_BATCH) -> np.ndarray:
-    """D(target) - D(R) for directions ``target`` (N, 3) in ``region`` (N,): the jumps of the region's
-    arcs (``Arcs.couple`` = region, sorted) that the arc from R to the target crosses, (N,) int64."""
-    arcs_of = np.bincount(arcs.couple, minlength=n_regions)
-    first_arc = np.cumsum(arcs_of) - arcs_of
-    total = np.zeros(len(region), np.int64)
-    reference_value = np.einsum("nk,nk->n", arcs.normal, reference[arcs.couple])
-    for p, j in _pair_batches(region, first_arc, arcs_of, pair_batch):
-        value = np.einsum("nk,nk->n", arcs.normal[j], target[p])
-        hit = _crosses(arcs, j, reference[region[p]], target[p], reference_value[j], value)
-        total += np.bincount(p[hit], weights=arcs.jump[j[hit]], minlength=len(region)).astype(np.int64)
-    return total
 
 
 def reference_points(uv: np.ndarray, count: np.ndarray) -> np.ndarray:
@@ -925,7 +646,7 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
         units = unit_count[pair_query[lo:hi]]
         pair = np.repeat(np.arange(lo, hi), units)
         unit = unit_first[pair_query[pair]] + np.arange(len(pair)) - np.repeat(np.cumsum(units) - units, units)
-        near = _may_be_silhouette(edges, pair_record[pair], unit_low[unit], unit_high[unit])
+        near = may_be_silhouette(edges, pair_record[pair], unit_low[unit], unit_high[unit])
         pair, unit = pair[near], unit[near]
         size = unit_size[unit]
         row_unit = np.repeat(unit, size)
@@ -969,7 +690,7 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
         probe_depth = depth_counts(tracer, origin[probe_region], position[region_couple[probe_region]] + probe_dir,
                                    own[region_couple[probe_region]], np.ones(len(probe_region), bool),
                                    couples.light[region_couple[probe_region]], edges)
-        between = _jumps_between(region_arcs, region_ref, probe_region, probe_dir, len(region_couple))
+        between = jumps_between(region_arcs, region_ref, probe_region, probe_dir, len(region_couple))
         estimates = np.concatenate([depth[crossed_regions][:, None],
                                     (probe_depth - between).reshape(len(crossed_regions), -1)], axis=1)
         depth[crossed_regions] = _most_common(estimates)

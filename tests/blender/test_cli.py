@@ -165,7 +165,7 @@ def test_ctrl_c_cancels_without_writing(tmp_path):
     try:
         deadline = time.monotonic() + 120
         for line in process.stderr:  # stage lines: wait until the core is at work
-            if "Blocker detection" in line or time.monotonic() > deadline:
+            if "Illumination" in line or time.monotonic() > deadline:
                 break
         process.send_signal(signal.SIGINT)
         _, stderr = process.communicate(timeout=60)

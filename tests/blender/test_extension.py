@@ -1,8 +1,8 @@
 """The extension zip, end to end: built by tools/build_extension.py, installed into bpy with Blender's own
 extension installer, enabled, and rendering a scene, all in fresh processes.
 
-Building downloads the six wheels of blender_manifest.toml from PyPI into wheels/ once (about 37 MB; later
-runs reuse them). Without network access the test fails and says so: it does not skip, because a zip
+Building downloads the 18 wheels of blender_manifest.toml from PyPI into wheels/ once (about 360 MB, most
+of it llvmlite, Numba's LLVM; later runs reuse them). Without network access the test fails and says so: it does not skip, because a zip
 without its wheels is not an extension anyone can install.
 """
 
@@ -23,23 +23,27 @@ from blender_helpers import ROOT  # noqa: E402
 
 # Runs in a fresh bpy whose user resources (extensions, preferences) live in a temporary folder.
 INSTALL_AND_RENDER = textwrap.dedent("""
-    import json, math, sys
+    import importlib, json, math, sys
     from pathlib import Path
     import bpy
 
     zip_path, exr_path = sys.argv[1], sys.argv[2]
     bpy.ops.wm.read_factory_settings(use_empty=True)  # before installing: it also resets the add-ons
-    result = bpy.ops.extensions.package_install_files(filepath=zip_path, repo="user_default",
-                                                      enable_on_install=True)
-    report = {"install": sorted(result), "addons": sorted(bpy.context.preferences.addons.keys())}
     repo = next(r for r in bpy.context.preferences.extensions.repos if r.module == "user_default")
     site = Path(repo.directory).parent / ".local" / "lib" / f"python{sys.version_info[0]}.{sys.version_info[1]}" \\
         / "site-packages"
-    report["wheels"] = sorted(p.name for p in site.iterdir()) if site.is_dir() else []
-    # Import the bundled wheels, not this environment's copies, as a Blender install without them would.
+    # Import the bundled wheels, not this environment's copies, as a Blender install without them would:
+    # their folder goes first on the path before enabling imports any of them (a package imported from
+    # two places at once, numba from here and llvmlite from there, breaks).
+    site.mkdir(parents=True, exist_ok=True)  # a missing folder on the path is remembered as missing
     sys.path.insert(0, str(site))
-    for name in [m for m in sys.modules if m.split(".")[0] in ("embreex", "OpenEXR", "Imath")]:
+    for name in [m for m in sys.modules if m.split(".")[0] in ("embreex", "OpenEXR", "Imath", "numba", "llvmlite")]:
         del sys.modules[name]
+    importlib.invalidate_caches()
+    result = bpy.ops.extensions.package_install_files(filepath=zip_path, repo="user_default",
+                                                      enable_on_install=True)
+    report = {"install": sorted(result), "addons": sorted(bpy.context.preferences.addons.keys())}
+    report["wheels"] = sorted(p.name for p in site.iterdir()) if site.is_dir() else []
 
     scene = bpy.context.scene
     scene.render.engine = "LAZYVIS"
@@ -59,9 +63,10 @@ INSTALL_AND_RENDER = textwrap.dedent("""
     scene.render.filepath = exr_path
     bpy.ops.render.render(write_still=True)
 
-    import embreex, OpenEXR
+    import embreex, numba, OpenEXR
     engine = next(c for c in bpy.types.RenderEngine.__subclasses__() if getattr(c, "bl_idname", "") == "LAZYVIS")
     report.update(engine_module=engine.__module__, embreex=embreex.__file__, openexr=OpenEXR.__file__,
+                  numba=numba.__file__,
                   top_level_package_imported="lazyvis_addon" in sys.modules)
     with OpenEXR.File(exr_path) as exr:
         pixels = exr.parts[0].channels["RGBA"].pixels
@@ -97,9 +102,10 @@ def test_extension_zip_installs_enables_and_renders(tmp_path):
     assert "bl_ext.user_default.lazyvis" in report["addons"]
     assert report["engine_module"].startswith("bl_ext.user_default.lazyvis.")  # the installed copy
     assert not report["top_level_package_imported"], "the extension must not import the repository's package"
-    for wheel in ("embreex", "OpenEXR"):
+    for wheel in ("embreex", "OpenEXR", "numba", "llvmlite"):
         assert any(name.startswith(wheel) for name in report["wheels"]), report["wheels"]
-    assert str(user) in report["embreex"] and str(user) in report["openexr"], report  # the bundled wheels
+    for module in ("embreex", "openexr", "numba"):
+        assert str(user) in report[module], report  # the bundled wheels
     # The centre pixel sees the plane (grey 0.8, no material) straight below the centre of a square light
     # of side 2a = 1 m at h = 1 m with radiance 1: E = 4 s atan(s), s = a / sqrt(a^2 + h^2).
     a, h = 0.5, 1.0
