@@ -143,40 +143,9 @@ def _rows(couple, record, position, own_triangle, edge_start, edge_end, third, t
         if beyond:
             continue
         _cross(a, b, cross)
-        # The range inside the light's cone.
-        length = max(np.sqrt(cross[0] * cross[0] + cross[1] * cross[1] + cross[2] * cross[2]), 1e-300)
-        enter, leave = 0.0, 1.0
-        outside = False
-        for v in range(n_planes):
-            if not cone_valid[c, v]:
-                continue
-            p0, p1, p2 = cone[c, v, 0], cone[c, v, 1], cone[c, v, 2]
-            # An arc along the light's edge (an edge of the receiver's own face lies in the horizon that
-            # clipped the light) never crosses the inside: its jump happens on the boundary.
-            if abs((p0 * cross[0] + p1 * cross[1] + p2 * cross[2]) / length) > ON_BOUNDARY:
-                outside = True
-                break
-            va = p0 * a[0] + p1 * a[1] + p2 * a[2]
-            vb = p0 * b[0] + p1 * b[1] + p2 * b[2]
-            if va <= 0 and vb <= 0:
-                outside = True
-                break
-            if va < 0 and vb > 0:
-                enter = max(enter, va / (va - vb))
-            elif va > 0 and vb < 0:
-                leave = min(leave, va / (va - vb))
-        if outside or not leave > enter + 1e-12:
-            continue
-        # The segment must also point towards the light: a direction on the cone's far nappe passes every
-        # plane test too.
-        middle = 0.5 * (enter + leave)
-        toward = 0.0
-        for k in range(3):
-            toward += (a[k] + middle * (b[k] - a[k])) * (-side * light_normal[light, k])
-        if not toward > 0:
-            continue
-        if not (cross[0] * cross[0] + cross[1] * cross[1] + cross[2] * cross[2]
-                > 1e-30 * (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]) * (b[0] * b[0] + b[1] * b[1] + b[2] * b[2])):
+        enter, leave, inside = _cone_range(a, b, cross, cone[c], cone_valid[c], -side * light_normal[light, 0],
+                                           -side * light_normal[light, 1], -side * light_normal[light, 2])
+        if not inside:
             continue
         keep[m] = row
         for k in range(3):
@@ -189,6 +158,67 @@ def _rows(couple, record, position, own_triangle, edge_start, edge_end, third, t
 
 
 @njit(cache=True, nogil=True)
+def _cone_range(a, b, cross, planes, valid, toward_x, toward_y, toward_z):
+    """The parameter range enter .. leave of the segment a -> b (3,) inside a cone (unit inward planes
+    (V, 3), ``valid`` (V,)) that opens towards ``toward``, and whether a range of positive length remains.
+    ``cross`` = a x b."""
+    length = max(np.sqrt(cross[0] * cross[0] + cross[1] * cross[1] + cross[2] * cross[2]), 1e-300)
+    enter, leave = 0.0, 1.0
+    for v in range(planes.shape[0]):
+        if not valid[v]:
+            continue
+        p0, p1, p2 = planes[v, 0], planes[v, 1], planes[v, 2]
+        # An arc along the light's edge (an edge of the receiver's own face lies in the horizon that
+        # clipped the light) never crosses the inside: its jump happens on the boundary.
+        if abs((p0 * cross[0] + p1 * cross[1] + p2 * cross[2]) / length) > ON_BOUNDARY:
+            return enter, leave, False
+        va = p0 * a[0] + p1 * a[1] + p2 * a[2]
+        vb = p0 * b[0] + p1 * b[1] + p2 * b[2]
+        if va <= 0 and vb <= 0:
+            return enter, leave, False
+        if va < 0 and vb > 0:
+            enter = max(enter, va / (va - vb))
+        elif va > 0 and vb < 0:
+            leave = min(leave, va / (va - vb))
+    if not leave > enter + 1e-12:
+        return enter, leave, False
+    # The segment must also point towards the light: a direction on the cone's far nappe passes every
+    # plane test too.
+    middle = 0.5 * (enter + leave)
+    toward = (a[0] + middle * (b[0] - a[0])) * toward_x + (a[1] + middle * (b[1] - a[1])) * toward_y + \
+        (a[2] + middle * (b[2] - a[2])) * toward_z
+    if not toward > 0:
+        return enter, leave, False
+    degenerate = not (cross[0] * cross[0] + cross[1] * cross[1] + cross[2] * cross[2]
+                      > 1e-30 * (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]) * (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]))
+    return enter, leave, not degenerate
+
+
+def cone_ranges(start: np.ndarray, end: np.ndarray, normal: np.ndarray, arc: np.ndarray, planes: np.ndarray,
+                valid: np.ndarray, cone: np.ndarray, toward: np.ndarray):
+    """The range of arcs ``arc`` (N,) int64 (segments start -> end, normal = start x end, (S, 3) each,
+    each opening towards ``toward`` (S, 3)) inside cones ``cone`` (N,) int64 of ``planes`` (C, V, 3) /
+    ``valid`` (C, V): enter, leave (N,) float64 and whether a range of positive length remains (N,) bool.
+    Nothing is gathered per row: a heavy couple's grid of cells has few cones and many (arc, cell) rows."""
+    def f64(a):
+        return np.ascontiguousarray(a, np.float64)
+
+    return _cone_ranges(f64(start), f64(end), f64(normal), np.ascontiguousarray(arc, np.int64), f64(planes),
+                        np.ascontiguousarray(valid, np.bool_), np.ascontiguousarray(cone, np.int64), f64(toward))
+
+
+@njit(cache=True, nogil=True)
+def _cone_ranges(start, end, normal, arc, planes, valid, cone, toward):
+    n = len(arc)
+    enter, leave, ok = np.empty(n), np.empty(n), np.empty(n, np.bool_)
+    for row in range(n):
+        i, c = arc[row], cone[row]
+        enter[row], leave[row], ok[row] = _cone_range(start[i], end[i], normal[i], planes[c], valid[c],
+                                                      toward[i, 0], toward[i, 1], toward[i, 2])
+    return enter, leave, ok
+
+
+@njit(cache=True, nogil=True)
 def _cross(a, b, out):
     out[0] = a[1] * b[2] - a[2] * b[1]
     out[1] = a[2] * b[0] - a[0] * b[2]
@@ -196,8 +226,9 @@ def _cross(a, b, out):
 
 
 def compile_rows() -> None:
-    """Compile ``_rows`` (or load it from Numba's cache) on a one-row input."""
+    """Compile ``_rows`` and ``_cone_ranges`` (or load them from Numba's cache) on one-row inputs."""
     f, i, one = np.zeros((1, 3)), np.zeros(1, np.int64), np.zeros(1)
     _rows(i, i, f, i, f, f, np.zeros((1, 2, 3)), np.zeros((1, 2), np.int64), i, np.zeros((1, 2, 3)),
           np.zeros((1, 2)), np.zeros((1, 2)), i, one, f, f, one, np.zeros((1, 3, 3)), np.zeros((1, 3), np.bool_),
           np.zeros((1, 4, 3)), f)
+    _cone_ranges(f, f, f, i, np.zeros((1, 3, 3)), np.zeros((1, 3), np.bool_), i, f)

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import arcs as arcs_module, arrangement as arrangement_module, detection as detection_module
-from .arcs import ON_BOUNDARY, SIGN_EPS, compile_rows, test_rows
+from .arcs import SIGN_EPS, compile_rows, cone_ranges, test_rows
 from .arrangement import compile_arrangement, jumps_between, visible_fans
 from .detection import compile_walk, may_be_silhouette, walk_tree
 from .blockers import _rank_within, _unique_points
@@ -385,30 +385,6 @@ def couple_arcs(edges: MeshEdges, frames: LightFrames, couples: ReceiverLight, p
     return Arcs(couple, start, end, normal, enter, leave, jump)
 
 
-def _cone_range(a: np.ndarray, b: np.ndarray, normal: np.ndarray, planes: np.ndarray, valid: np.ndarray,
-                toward: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The parameter range (N,) enter .. leave of segments a -> b (N, 3) inside cones (unit inward planes
-    (N, V, 3), valid (N, V)) that open towards ``toward`` (N, 3), and whether a range of positive length
-    remains (N,) bool. ``normal``: a x b."""
-    unit = normal / np.maximum(np.linalg.norm(normal, axis=1), 1e-300)[:, None]
-    # An arc along the light's edge (an edge of the receiver's own face lies in the horizon that clipped
-    # the light) never crosses the inside: its jump happens on the boundary.
-    on_boundary = (valid & (np.abs(np.einsum("nvk,nk->nv", planes, unit)) > ON_BOUNDARY)).any(axis=1)
-    va = np.einsum("nvk,nk->nv", planes, a)
-    vb = np.einsum("nvk,nk->nv", planes, b)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = va / (va - vb)
-    enter = np.where(valid & (va < 0) & (vb > 0), t, 0.0).max(axis=1)
-    leave = np.where(valid & (va > 0) & (vb < 0), t, 1.0).min(axis=1)
-    outside = (valid & (va <= 0) & (vb <= 0)).any(axis=1)
-    # The segment must also point towards the light: a direction on the cone's far nappe passes every
-    # plane test too.
-    mid = a + 0.5 * (enter + leave)[:, None] * (b - a)
-    ok = ~outside & ~on_boundary & (leave > enter + 1e-12) & (np.einsum("nk,nk->n", mid, toward) > 0)
-    ok &= np.einsum("nk,nk->n", normal, normal) > 1e-30 * np.einsum("nk,nk->n", a, a) * np.einsum("nk,nk->n", b, b)
-    return enter, leave, ok
-
-
 def bounding_cone(couples: ReceiverLight, frames: LightFrames) -> np.ndarray:
     """Inward normals (Nc, 4, 3) of the cone from each receiver through the (u, v) bounding box of its
     clipped light: a cone holding the light's, for a quick test."""
@@ -495,7 +471,7 @@ def compile_kernels() -> bool:
     compile_rows()
     compile_arrangement()
     kernels = (detection_module._walk, detection_module._may_be_silhouettes, arcs_module._rows,
-               arrangement_module._fans, arrangement_module._jumps)
+               arcs_module._cone_ranges, arrangement_module._fans, arrangement_module._jumps)
     return any(kernel.stats.cache_misses for kernel in kernels)
 
 
@@ -780,14 +756,12 @@ def _regions(couples: ReceiverLight, frames: LightFrames, arcs: Arcs, arcs_of: n
     cell_count = polygon_count[nonempty]
     cell_ref_uv = reference_points(cell_uv, cell_count)
     local = region - len(light_couples)
-    cell_dirs = couples.directions(frames, cell_uv, cell_couple)
-    planes, valid = cone_of_light(cell_dirs[local], cell_count[local])
-    light = couples.light[moved.couple[arc]]
-    toward = -couples.side[moved.couple[arc]][:, None] * frames.normal[light]
-    enter, leave, ok = _cone_range(moved.start[arc], moved.end[arc], moved.normal[arc], planes, valid, toward)
+    planes, valid = cone_of_light(couples.directions(frames, cell_uv, cell_couple), cell_count)  # per cell
+    toward = -couples.side[moved.couple][:, None] * frames.normal[couples.light[moved.couple]]   # per arc
+    enter, leave, ok = cone_ranges(moved.start, moved.end, moved.normal, arc, planes, valid, local, toward)
     arc, region, enter, leave, local = arc[ok], region[ok], enter[ok], leave[ok], local[ok]
     # Jumps were taken relative to the couple's reference point; the cell's may lie on the other side.
-    cell_ref = couples.directions(frames, cell_ref_uv[local][:, None, :], cell_couple[local])[:, 0]
+    cell_ref = couples.directions(frames, cell_ref_uv[:, None, :], cell_couple)[:, 0][local]
     side_couple = np.einsum("nk,nk->n", moved.normal[arc], reference[moved.couple[arc]]) >= 0
     side_cell = np.einsum("nk,nk->n", moved.normal[arc], cell_ref) >= 0
     jump = np.where(side_couple == side_cell, moved.jump[arc], -moved.jump[arc])
