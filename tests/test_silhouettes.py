@@ -2,6 +2,8 @@
 that leaks through the paper's blocker map (sub-pixel leaves, dense smooth meshes, foliage), on broken
 meshes, and unchanged by its batching and cells."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -189,3 +191,38 @@ def test_arrangement_kernel_on_hand_made_arcs():
     area = fan_area(couple, start, end, sign, reference, 3) + 4.0 * whole
     np.testing.assert_allclose(area, [2.0, 1.5, 0.0], atol=1e-12)
     assert inconsistent == 0 and not whole[2]
+
+
+@pytest.mark.parametrize("flip", [False, True])
+def test_normal_cones_drop_only_edges_the_exact_test_drops(flip):
+    """The tree walk skips a node whose faces all face a receiver group one way (``_normal_cones``): on a
+    dense sphere over a floor (and with every other face's winding flipped, where the cones widen and
+    give up) the walk with the cones returns exactly the candidates of the walk without them, for groups on
+    the floor and on the sphere itself. On the consistently wound sphere the cones are tight enough to
+    drop nodes, and do."""
+    from lazyvis_addon.core import detection
+    sphere = uv_sphere((0.0, 0.0, 0.5), 0.3, rings=24, segments=32)
+    if flip:
+        sphere[::2] = sphere[::2, ::-1]
+    scene = plane_under_light(resolution=16, blocker=sphere)
+    frames = light_frames(scene.lights)
+    edges = MeshEdges.from_triangles(scene.triangles, frames)
+    rng = np.random.default_rng(4)
+    centre = np.concatenate([rng.uniform(-0.8, 0.8, (40, 2)), np.zeros((40, 1))], axis=1)
+    centre[:10] = sphere[rng.integers(0, len(sphere), 10), 0]  # groups on the sphere itself
+    low, high = centre - 0.02, centre + 0.02
+    height = 1.0 - low[:, 2]  # the light's plane is z = 1, facing down
+    args = (frames, low, high, np.arange(len(centre)), np.zeros(len(centre), np.int64), np.ones(len(centre)), height)
+    with_cones = silhouettes.candidate_edges(edges, *args)
+    blind = dataclasses.replace(edges, node_spread=np.full_like(edges.node_spread, np.inf))
+    without = silhouettes.candidate_edges(blind, *args)
+    np.testing.assert_array_equal(with_cones[0], without[0])
+    np.testing.assert_array_equal(with_cones[1], without[1])
+    leaves = slice(edges.n_leaves - 1, None)
+    dropped = sum(detection._one_sided(edges.node_axis[n], edges.node_spread[n], edges.node_low[n],
+                                       edges.node_high[n], low[q], high[q])
+                  for q in range(len(centre)) for n in range(edges.n_leaves - 1, len(edges.node_spread)))
+    if not flip:
+        assert dropped > 0
+    else:  # mixed windings: a sphere leaf's normals point both ways, so its cone covers every direction
+        assert (edges.node_spread[leaves][np.isfinite(edges.node_spread[leaves])] > 1.0).mean() > 0.5

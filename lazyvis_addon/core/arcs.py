@@ -194,28 +194,62 @@ def _cone_range(a, b, cross, planes, valid, toward_x, toward_y, toward_z):
     return enter, leave, not degenerate
 
 
-def cone_ranges(start: np.ndarray, end: np.ndarray, normal: np.ndarray, arc: np.ndarray, planes: np.ndarray,
-                valid: np.ndarray, cone: np.ndarray, toward: np.ndarray):
-    """The range of arcs ``arc`` (N,) int64 (segments start -> end, normal = start x end, (S, 3) each,
-    each opening towards ``toward`` (S, 3)) inside cones ``cone`` (N,) int64 of ``planes`` (C, V, 3) /
-    ``valid`` (C, V): enter, leave (N,) float64 and whether a range of positive length remains (N,) bool.
-    Nothing is gathered per row: a heavy couple's grid of cells has few cones and many (arc, cell) rows."""
+def arcs_in_cells(start: np.ndarray, end: np.ndarray, normal: np.ndarray, toward: np.ndarray, box: np.ndarray,
+                  grid: np.ndarray, cell_slot: np.ndarray, cell_cone: np.ndarray, planes: np.ndarray,
+                  valid: np.ndarray):
+    """The (arc, cell) rows of heavy couples' arcs: each arc against the cells of the part of its couple's
+    grid that its (u, v) extent spans, kept where it crosses the cell's cone.
+
+    Parameters
+    ----------
+    start, end, normal : (S, 3) float64   the arcs (segments from the receiver; normal = start x end).
+    toward : (S, 3) float64    the direction each arc's cone opens towards (away from the receiver's side).
+    box : (S, 4) int64         i0, i1, j0, j1: the grid cells spanned (inclusive).
+    grid : (S,) int64          the grid's size g of the arc's couple; cell_slot : (S,) the index of the
+                               couple's cell (0, 0) in ``cell_cone`` (cell (i, j) is slot + i g + j).
+    cell_cone : (M,) int64     the cone (row of planes / valid) of each grid cell, -1 for an empty cell.
+
+    Returns arc (N,) int64, cone (N,) int64, enter, leave (N,) float64. Only kept rows are stored: a long
+    diagonal arc spans g x g cells of its box but crosses about 2 g of them.
+    """
     def f64(a):
         return np.ascontiguousarray(a, np.float64)
 
-    return _cone_ranges(f64(start), f64(end), f64(normal), np.ascontiguousarray(arc, np.int64), f64(planes),
-                        np.ascontiguousarray(valid, np.bool_), np.ascontiguousarray(cone, np.int64), f64(toward))
+    def i64(a):
+        return np.ascontiguousarray(a, np.int64)
+
+    arrays = (f64(start), f64(end), f64(normal), f64(toward), i64(box), i64(grid), i64(cell_slot), i64(cell_cone),
+              f64(planes), np.ascontiguousarray(valid, np.bool_))
+    capacity = max(1024, 4 * len(start))
+    while True:  # the rows outgrow their estimate: again with four times the room
+        arc, cone, enter, leave, complete = _arcs_in_cells(*arrays, capacity)
+        if complete:
+            return arc, cone, enter, leave
+        capacity *= 4
 
 
 @njit(cache=True, nogil=True)
-def _cone_ranges(start, end, normal, arc, planes, valid, cone, toward):
-    n = len(arc)
-    enter, leave, ok = np.empty(n), np.empty(n), np.empty(n, np.bool_)
-    for row in range(n):
-        i, c = arc[row], cone[row]
-        enter[row], leave[row], ok[row] = _cone_range(start[i], end[i], normal[i], planes[c], valid[c],
-                                                      toward[i, 0], toward[i, 1], toward[i, 2])
-    return enter, leave, ok
+def _arcs_in_cells(start, end, normal, toward, box, grid, cell_slot, cell_cone, planes, valid, capacity):
+    out_arc = np.empty(capacity, np.int64)
+    out_cone = np.empty(capacity, np.int64)
+    out_enter = np.empty(capacity)
+    out_leave = np.empty(capacity)
+    m = 0
+    for i in range(len(start)):
+        for ci in range(box[i, 0], box[i, 1] + 1):
+            for cj in range(box[i, 2], box[i, 3] + 1):
+                c = cell_cone[cell_slot[i] + ci * grid[i] + cj]
+                if c < 0:
+                    continue
+                enter, leave, ok = _cone_range(start[i], end[i], normal[i], planes[c], valid[c], toward[i, 0],
+                                               toward[i, 1], toward[i, 2])
+                if not ok:
+                    continue
+                if m == capacity:
+                    return out_arc, out_cone, out_enter, out_leave, False
+                out_arc[m], out_cone[m], out_enter[m], out_leave[m] = i, c, enter, leave
+                m += 1
+    return out_arc[:m], out_cone[:m], out_enter[:m], out_leave[:m], True
 
 
 @njit(cache=True, nogil=True)
@@ -226,9 +260,9 @@ def _cross(a, b, out):
 
 
 def compile_rows() -> None:
-    """Compile ``_rows`` and ``_cone_ranges`` (or load them from Numba's cache) on one-row inputs."""
+    """Compile ``_rows`` and ``_arcs_in_cells`` (or load them from Numba's cache) on one-row inputs."""
     f, i, one = np.zeros((1, 3)), np.zeros(1, np.int64), np.zeros(1)
     _rows(i, i, f, i, f, f, np.zeros((1, 2, 3)), np.zeros((1, 2), np.int64), i, np.zeros((1, 2, 3)),
           np.zeros((1, 2)), np.zeros((1, 2)), i, one, f, f, one, np.zeros((1, 3, 3)), np.zeros((1, 3), np.bool_),
           np.zeros((1, 4, 3)), f)
-    _cone_ranges(f, f, f, i, np.zeros((1, 3, 3)), np.zeros((1, 3), np.bool_), i, f)
+    _arcs_in_cells(f, f, f, f, np.zeros((1, 4), np.int64), i, i, i, np.zeros((1, 3, 3)), np.zeros((1, 3), np.bool_), 16)

@@ -41,7 +41,8 @@ def walk_tree(edges, leaf_size: int, low: np.ndarray, high: np.ndarray, toward: 
     def f64(a):
         return np.ascontiguousarray(a, np.float64)
 
-    arrays = (f64(edges.node_low), f64(edges.node_high), f64(edges.low), f64(edges.high),
+    arrays = (f64(edges.node_low), f64(edges.node_high), f64(edges.node_axis), f64(edges.node_spread),
+              f64(edges.low), f64(edges.high),
               np.ascontiguousarray(edges.light, np.int64), f64(edges.start), f64(edges.face_normal),
               f64(low), f64(high), f64(toward), f64(base), f64(eps), f64(height), f64(side_normal), f64(side_offset),
               np.ascontiguousarray(side_valid, np.bool_), np.ascontiguousarray(query_light, np.int64),
@@ -80,6 +81,22 @@ def _box_passes(q, box_low, box_high, low, high, toward, base, eps, height, side
 
 
 @njit(cache=True, nogil=True)
+def _one_sided(axis, spread, node_low, node_high, box_low, box_high):
+    """Every oriented face normal o within ``spread`` of ``axis`` has o . (a - x) of one sign, with a margin
+    above the arc test's sign tolerance, for every edge point a in the node's box and x in the receiver
+    box: then every edge under the node has jump 0 there (``silhouettes._normal_cones``)."""
+    lowest, highest, far = 0.0, 0.0, 0.0
+    for k in range(3):
+        d_low, d_high = node_low[k] - box_high[k], node_high[k] - box_low[k]  # a - x over the two boxes
+        c = axis[k]
+        lowest += c * (d_low if c > 0 else d_high)
+        highest += c * (d_high if c > 0 else d_low)
+        far += max(d_low * d_low, d_high * d_high)
+    margin = (spread + 4.0 * SIGN_EPS) * np.sqrt(far)
+    return lowest > margin or highest < -margin
+
+
+@njit(cache=True, nogil=True)
 def _may_be_silhouette(start, face_normal, cut, box_low, box_high):
     """False only where the edge's jump is 0 at every point of the box: each of its faces' planes leaves
     the whole box on one side (the plane's range over the box excludes 0) and those sides cancel. Cut
@@ -111,7 +128,7 @@ def _may_be_silhouette(start, face_normal, cut, box_low, box_high):
 
 
 @njit(cache=True, nogil=True)
-def _walk(node_low, node_high, record_low, record_high, record_light, start, face_normal, low, high, toward, base,
+def _walk(node_low, node_high, node_axis, node_spread, record_low, record_high, record_light, start, face_normal, low, high, toward, base,
           eps, height, side_normal, side_offset, side_valid, query_light, group_low, group_high, n_leaves,
           leaf_size, capacity):
     out_query = np.empty(capacity, np.int64)
@@ -128,6 +145,9 @@ def _walk(node_low, node_high, record_low, record_high, record_light, start, fac
             if not _box_passes(q, node_low[node], node_high[node], low, high, toward, base, eps, height,
                                side_normal, side_offset, side_valid):
                 continue
+            if _one_sided(node_axis[node], node_spread[node], node_low[node], node_high[node], group_low[q],
+                          group_high[q]):
+                continue  # every face under the node faces the whole group one way: no silhouette there
             if node < n_leaves - 1:  # inner node: the left child is visited first
                 stack[depth] = 2 * node + 2
                 stack[depth + 1] = 2 * node + 1
@@ -154,7 +174,7 @@ def _walk(node_low, node_high, record_low, record_high, record_light, start, fac
 def compile_walk() -> None:
     """Compile ``_walk`` (or load it from Numba's cache) on a one-query input."""
     f, i, one = np.zeros((1, 3)), np.zeros(1, np.int64), np.zeros(1)
-    _walk(f, f, f, f, i, f, np.zeros((1, 2, 3)), f, f, f, one, one, one, np.zeros((1, 4, 3)), np.zeros((1, 4)),
+    _walk(f, f, f, one, f, f, i, f, np.zeros((1, 2, 3)), f, f, f, one, one, one, np.zeros((1, 4, 3)), np.zeros((1, 4)),
           np.zeros((1, 4), np.bool_), i, f, f, 1, 32, 16)
     _may_be_silhouettes(i, f, np.zeros((1, 2, 3)), i, f, f)
 

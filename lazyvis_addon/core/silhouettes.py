@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import arcs as arcs_module, arrangement as arrangement_module, detection as detection_module
-from .arcs import SIGN_EPS, compile_rows, cone_ranges, test_rows
+from .arcs import SIGN_EPS, arcs_in_cells, compile_rows, test_rows
 from .arrangement import compile_arrangement, jumps_between, visible_fans
 from .detection import compile_walk, may_be_silhouette, walk_tree
 from .blockers import _rank_within, _unique_points
@@ -65,6 +65,8 @@ MIN_ROW_BATCH = 4096
 CELL_ARCS = 48
 CELL_TARGET = 12
 MAX_GRID = 24
+# Cells clipped per array batch.
+CELL_BATCH = 1 << 15
 # Hits a reference depth ray may count before it gives up (the scene is then assumed solid there).
 DEPTH_ROUNDS = 64
 # Vertices this close (relative to the scene's coordinates) are welded into one for the edge records.
@@ -105,6 +107,8 @@ class MeshEdges:
     node_high: np.ndarray
     n_triangles: int = 0
     in_light_planes: np.ndarray | None = None   # sorted light * T + triangle of faces in a light's plane
+    node_axis: np.ndarray | None = None          # (2P - 1, 3) unit axis of each node's cone of face normals
+    node_spread: np.ndarray | None = None        # (2P - 1,) its radius (inf: the node cannot be culled)
 
     def __len__(self) -> int:
         return len(self.light)
@@ -165,13 +169,14 @@ class MeshEdges:
             for light in range(len(frames)):  # lights: a handful
                 parts.append(_cut_segments(triangles, frames, light, width))
         start, end, thirds, triangles_of, lights = (np.concatenate([p[i] for p in parts]) for i in range(5))
-        edges = cls._in_tree_order(start, end, thirds, triangles_of, lights)
+        winding = cross3(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+        edges = cls._in_tree_order(start, end, thirds, triangles_of, lights, winding)
         edges.n_triangles = n
         edges.in_light_planes = _in_light_planes(triangles, frames) if frames is not None else np.zeros(0, np.int64)
         return edges
 
     @classmethod
-    def _in_tree_order(cls, start, end, third, triangle, light) -> "MeshEdges":
+    def _in_tree_order(cls, start, end, third, triangle, light, winding) -> "MeshEdges":
         low, high = np.minimum(start, end), np.maximum(start, end)
         n_leaves = max(1, -(-len(light) // LEAF_EDGES))
         padded_leaves = 1 << int(np.ceil(np.log2(n_leaves)))
@@ -195,8 +200,61 @@ class MeshEdges:
         face_normal = cross3((end - start)[:, None], third - start[:, None])
         face_offset = np.einsum("ekd,ed->ek", face_normal, start)
         face_size = np.linalg.norm(face_normal, axis=2)
+        node_axis, node_spread = _normal_cones(face_normal, face_size, triangle, light, winding, padded_leaves)
         return cls(start, end, third, triangle, light, face_normal, face_offset, face_size, low, high, node_low,
-                   node_high)
+                   node_high, node_axis=node_axis, node_spread=node_spread)
+
+
+def _normal_cones(face_normal: np.ndarray, face_size: np.ndarray, triangle: np.ndarray, light: np.ndarray,
+                  winding: np.ndarray, padded_leaves: int) -> tuple[np.ndarray, np.ndarray]:
+    """Cones of oriented face normals per node of the edge tree: unit axes (2P - 1, 3) and radii (2P - 1,).
+
+    A record with exactly two faces has the jump sign(m1 . (a - x)) + sign(m2 . (a - x)) (m = its faces'
+    ``face_normal``), which is 0 wherever the oriented normals o1 = m1 / |m1| and o2 = -m2 / |m2| see x on
+    the same side; both may be negated (the jump only changes sign), and are, so that o1 points along its
+    triangle's winding normal (``winding`` (T, 3)): on a consistently wound mesh neighbouring records' o are
+    then its normals, whatever direction each record's edge runs. Every o under a node lies within
+    ``spread`` (a chord length) of the node's axis, so when
+    the axis and the spread say that all of them keep one sign over a receiver box, no edge under the node
+    is a silhouette there (``detection``'s walk drops it). Nodes holding a rim, a non-manifold edge, a
+    degenerate face or a cut segment get an infinite spread: never dropped this way.
+    """
+    two_faces = (triangle[:, :2] >= 0).all(axis=1) & (triangle[:, 2:] < 0).all(axis=1) & (light < 0) & \
+        (face_size[:, :2] > 0).all(axis=1)
+    size = np.where(face_size[:, :2] > 0, face_size[:, :2], 1.0)
+    along = np.einsum("ek,ek->e", face_normal[:, 0], winding[np.maximum(triangle[:, 0], 0)]) if len(winding) else \
+        np.zeros(len(light))
+    two_faces &= along != 0
+    flip = np.where(along < 0, -1.0, 1.0)[:, None]
+    oriented = np.stack([flip * face_normal[:, 0] / size[:, 0, None], -flip * face_normal[:, 1] / size[:, 1, None]],
+                        axis=1)
+    records = padded_leaves * LEAF_EDGES
+    total = np.zeros((records, 3))
+    total[:len(light)] = np.where(two_faces[:, None], oriented.sum(axis=1), 0.0)
+    unit = np.zeros((records, 2, 3))
+    unit[:len(light)] = np.where(two_faces[:, None, None], oriented, 0.0)
+    blocked = np.zeros(records, bool)
+    blocked[:len(light)] = ~two_faces
+    # Leaves: the axis is the normalised sum, the spread the farthest normal from it.
+    leaf_total = total.reshape(padded_leaves, LEAF_EDGES, 3).sum(axis=1)
+    leaf_axis = leaf_total / np.maximum(np.linalg.norm(leaf_total, axis=1), 1e-300)[:, None]
+    distance = np.linalg.norm(unit.reshape(padded_leaves, LEAF_EDGES, 2, 3) - leaf_axis[:, None, None], axis=3)
+    present = np.abs(unit.reshape(padded_leaves, LEAF_EDGES, 2, 3)).sum(axis=3) > 0
+    leaf_spread = np.where(present, distance, 0.0).max(axis=(1, 2))
+    leaf_spread[blocked.reshape(padded_leaves, LEAF_EDGES).any(axis=1)] = np.inf
+    axes, spreads, totals = [leaf_axis], [leaf_spread], [leaf_total]
+    while len(totals[-1]) > 1:  # tree levels: log2 of the leaves
+        child_total, child_axis, child_spread = totals[-1], axes[-1], spreads[-1]
+        level_total = child_total[0::2] + child_total[1::2]
+        level_axis = level_total / np.maximum(np.linalg.norm(level_total, axis=1), 1e-300)[:, None]
+        # |o - axis| <= |o - child axis| + |child axis - axis|; an empty child (no normals) adds nothing.
+        reach = [np.where(np.abs(child_total[k::2]).sum(axis=1) > 0,
+                          np.linalg.norm(child_axis[k::2] - level_axis, axis=1) + child_spread[k::2], child_spread[k::2])
+                 for k in (0, 1)]
+        totals.append(level_total)
+        axes.append(level_axis)
+        spreads.append(np.maximum(reach[0], reach[1]))
+    return np.concatenate(axes[::-1]), np.concatenate(spreads[::-1])
 
 
 # Faces within this distance (relative to the scene's coordinates) of a light's plane lie in it: a mesh
@@ -471,7 +529,7 @@ def compile_kernels() -> bool:
     compile_rows()
     compile_arrangement()
     kernels = (detection_module._walk, detection_module._may_be_silhouettes, arcs_module._rows,
-               arcs_module._cone_ranges, arrangement_module._fans, arrangement_module._jumps)
+               arcs_module._arcs_in_cells, arrangement_module._fans, arrangement_module._jumps)
     return any(kernel.stats.cache_misses for kernel in kernels)
 
 
@@ -722,13 +780,28 @@ def _regions(couples: ReceiverLight, frames: LightFrames, arcs: Arcs, arcs_of: n
     owner = np.repeat(np.arange(len(heavy)), n_cells)
     cell = np.arange(int(n_cells.sum())) - cell_first[owner]
     cell_i, cell_j = cell // grid[owner], cell % grid[owner]
-    polygon, polygon_count = uv[owner], count[owner]
-    for axis, index, upper in ((0, cell_i, False), (0, cell_i + 1, True), (1, cell_j, False), (1, cell_j + 1, True)):
-        bound = low[owner, axis] + index * step[owner, axis]  # four sides of a cell
-        side = polygon[..., axis] - bound[:, None]
-        polygon, polygon_count = clip_convex(polygon, polygon_count, -side if upper else side)
-        polygon = trim(polygon, polygon_count)
-    nonempty = polygon_count >= 3
+    # Clipped in batches of cells, keeping the non-empty ones: a grid's corner cells often miss the light,
+    # and the clip's (cell, vertex) temporaries of every cell at once were most of pass 2's memory.
+    nonempty = np.zeros(len(owner), bool)
+    kept_polygons, kept_counts = [], []
+    for lo in range(0, len(owner), CELL_BATCH):  # batches of cells
+        rows = slice(lo, lo + CELL_BATCH)
+        batch_owner = owner[rows]
+        polygon, polygon_count = uv[batch_owner], count[batch_owner]
+        for axis, index, upper in ((0, cell_i[rows], False), (0, cell_i[rows] + 1, True), (1, cell_j[rows], False),
+                                   (1, cell_j[rows] + 1, True)):  # four sides of a cell
+            bound = low[batch_owner, axis] + index * step[batch_owner, axis]
+            side = polygon[..., axis] - bound[:, None]
+            polygon, polygon_count = clip_convex(polygon, polygon_count, -side if upper else side)
+            polygon = trim(polygon, polygon_count)
+        keep = polygon_count >= 3
+        nonempty[rows] = keep
+        kept_polygons.append(polygon[keep])
+        kept_counts.append(polygon_count[keep])
+    cell_width = max([p.shape[1] for p in kept_polygons] + [3])
+    cell_uv = np.concatenate([_pad_to(p, cell_width) for p in kept_polygons]) if kept_polygons else \
+        np.zeros((0, cell_width, 2))
+    cell_count = np.concatenate(kept_counts) if kept_counts else np.zeros(0, np.int64)
     cell_region = np.full(len(owner), -1, np.int64)
     cell_region[nonempty] = len(light_couples) + np.arange(int(nonempty.sum()))
     cell_couple = heavy[owner[nonempty]]
@@ -745,21 +818,14 @@ def _regions(couples: ReceiverLight, frames: LightFrames, arcs: Arcs, arcs_of: n
                    (g - 1)[:, None, None]).astype(np.int64)
     i0, i1 = span[:, :, 0].min(axis=1), span[:, :, 0].max(axis=1)
     j0, j1 = span[:, :, 1].min(axis=1), span[:, :, 1].max(axis=1)
-    per = (i1 - i0 + 1) * (j1 - j0 + 1)
-    arc = np.repeat(np.arange(len(h)), per)
-    k = np.arange(len(arc)) - np.repeat(np.cumsum(per) - per, per)
-    width_j = (j1 - j0 + 1)[arc]
-    ci, cj = i0[arc] + k // width_j, j0[arc] + k % width_j
-    region = cell_region[cell_first[h[arc]] + ci * g[arc] + cj]
-    arc, region = arc[region >= 0], region[region >= 0]
-    cell_uv = polygon[nonempty]
-    cell_count = polygon_count[nonempty]
     cell_ref_uv = reference_points(cell_uv, cell_count)
-    local = region - len(light_couples)
     planes, valid = cone_of_light(couples.directions(frames, cell_uv, cell_couple), cell_count)  # per cell
     toward = -couples.side[moved.couple][:, None] * frames.normal[couples.light[moved.couple]]   # per arc
-    enter, leave, ok = cone_ranges(moved.start, moved.end, moved.normal, arc, planes, valid, local, toward)
-    arc, region, enter, leave, local = arc[ok], region[ok], enter[ok], leave[ok], local[ok]
+    cell_cone = np.where(cell_region >= 0, cell_region - len(light_couples), -1)
+    arc, local, enter, leave = arcs_in_cells(moved.start, moved.end, moved.normal, toward,
+                                             np.stack([i0, i1, j0, j1], axis=1), g, cell_first[h], cell_cone,
+                                             planes, valid)
+    region = local + len(light_couples)
     # Jumps were taken relative to the couple's reference point; the cell's may lie on the other side.
     cell_ref = couples.directions(frames, cell_ref_uv[:, None, :], cell_couple)[:, 0][local]
     side_couple = np.einsum("nk,nk->n", moved.normal[arc], reference[moved.couple[arc]]) >= 0
