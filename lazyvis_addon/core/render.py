@@ -24,7 +24,7 @@ from .bsdf import SurfaceBsdf
 from .geometry import light_groups
 from .illumination import (VisiblePieces, couple_weights, couples_for, reflected_radiance, standard_mc,
                            verify_visible, visible_pieces)
-from .silhouettes import MeshEdges, compile_kernels, row_batch_for, silhouette_pieces
+from .silhouettes import MeshEdges, compile_kernels, pixel_batch_for, row_batch_for, silhouette_pieces
 from .progress import Progress
 from .scene import Scene
 from .settings import Settings
@@ -268,6 +268,8 @@ def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: Bloc
     threads = thread_count(settings.threads)
     row_batch = row_batch_for(settings.memory_budget_mb, threads) if edges is not None else 0
     batch = min(settings.pixel_batch, max(MIN_SHARED_BATCH, -(-n_pixels // (4 * threads))))
+    if edges is not None:  # the silhouettes' temporaries grow with the lights' vertices
+        batch = min(batch, pixel_batch_for(settings.memory_budget_mb, threads, frames))
     # Entries are sorted by pixel, so each batch's entries form one contiguous run.
     entry_bounds = None
     if blockers is not None:

@@ -67,6 +67,8 @@ CELL_TARGET = 12
 MAX_GRID = 24
 # Cells clipped per array batch.
 CELL_BATCH = 1 << 15
+# Arcs per chunk of couples whose regions, depths and arrangement are worked out together.
+ARC_CHUNK = 1 << 16
 # Hits a reference depth ray may count before it gives up (the scene is then assumed solid there).
 DEPTH_ROUNDS = 64
 # Vertices this close (relative to the scene's coordinates) are welded into one for the edge records.
@@ -533,6 +535,23 @@ def compile_kernels() -> bool:
     return any(kernel.stats.cache_misses for kernel in kernels)
 
 
+# Bytes of pass 2's per-couple temporaries per vertex of the clipped light (its cone, its directions, the
+# analytic integrals over it): about 450 measured on suzanne_dense at 512 px (32-gon disks), rounded up.
+COUPLE_VERTEX_BYTES = 512
+# Fewer pixels per batch than this and per-batch overheads would dominate.
+MIN_PIXEL_BATCH = 256
+
+
+def pixel_batch_for(memory_budget_mb: float, threads: int, frames: LightFrames) -> int:
+    """Pixels per pass-2 batch: a quarter of the memory budget shared by the threads' batches, each pixel
+    costing COUPLE_VERTEX_BYTES per light and vertex of its clipped light (clipping at the horizons adds
+    at most a few vertices). suzanne_dense at 512 px with batches of 16384 pixels peaked at 2.7 GB, with
+    4096 at 0.95 GB, as fast."""
+    vertices = int(frames.vertex_count.max()) + 4 if len(frames) else 4
+    per_pixel = max(len(frames), 1) * vertices * COUPLE_VERTEX_BYTES
+    return max(MIN_PIXEL_BATCH, int(memory_budget_mb * 2 ** 20 / 4 / max(threads, 1) / per_pixel))
+
+
 def row_batch_for(memory_budget_mb: float, threads: int) -> int:
     """Rows per arc-test batch that keep every thread's temporaries within a quarter of the budget.
 
@@ -696,12 +715,46 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
     stats["max_arcs_per_couple"] = int(arcs_of.max()) if n_couples else 0
     stats["arcs_of_couple"] = arcs_of
 
+    # The rest runs per chunk of couples of about ARC_CHUNK arcs: a heavy couple's cells hold its arcs
+    # several times over, and the cells of a whole batch of foliage were most of pass 2's memory.
+    arc_bounds = np.concatenate([[0], np.cumsum(arcs_of)])
+    couple_cuts = np.unique(np.concatenate([[0], np.searchsorted(arc_bounds, np.arange(ARC_CHUNK, len(arcs.couple),
+                                                                                      ARC_CHUNK)), [n_couples]]))
+    parts = []
+    visible = np.zeros(n_couples, bool)
+    for c0, c1 in zip(couple_cuts[:-1], couple_cuts[1:]):  # chunks of couples
+        if c1 <= c0:
+            continue
+        chunk_arcs = arcs.take(slice(arc_bounds[c0], arc_bounds[c1]))
+        parts.append(_visible_parts(surface, couple_pixel, couples, frames, edges, tracer, chunk_arcs, arcs_of,
+                                    reference, reference_uv, position, own, np.arange(c0, c1), visible, stats))
+    uv = np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 3, 2))
+    piece_couple = np.concatenate([p[1] for p in parts]) if parts else np.zeros(0, np.int64)
+    sign = np.concatenate([p[2] for p in parts]) if parts else np.zeros(0)
+    polygons = _concat_polygons([p[3] for p in parts])
+    return uv, piece_couple, sign, polygons, ~visible, stats
+
+
+def _concat_polygons(parts):
+    """Concatenate (couple, uv (W, K, 2), count) triples of polygons of different widths K."""
+    if not parts:
+        return np.zeros(0, np.int64), np.zeros((0, 3, 2)), np.zeros(0, np.int64)
+    width = max(max(p[1].shape[1] for p in parts), 3)
+    return (np.concatenate([p[0] for p in parts]), np.concatenate([_pad_to(p[1], width) for p in parts]),
+            np.concatenate([p[2] for p in parts]))
+
+
+def _visible_parts(surface, couple_pixel, couples, frames, edges, tracer, arcs: Arcs, arcs_of: np.ndarray,
+                   reference, reference_uv, position, own, members: np.ndarray, visible: np.ndarray, stats: dict):
+    """Regions, reference depths and the arrangement of the couples ``members`` (a contiguous range, whose
+    arcs ``arcs`` are): signed fan triangles (uv (M, 3, 2), couple (M,), sign (M,)) and whole polygons
+    (couple, uv, count); marks the couples with anything visible in ``visible`` and adds to ``stats``."""
     # Regions: a couple's light, or, where many arcs cross it (foliage), the cells of a grid over it, so
     # that the arrangement's cost (pairs of arcs) follows the arcs per cell.
-    heavy = np.flatnonzero(arcs_of > CELL_ARCS)
+    heavy = members[arcs_of[members] > CELL_ARCS]
     region_couple, region_uv, region_count, region_arcs, region_ref_uv = _regions(
-        couples, frames, arcs, arcs_of, heavy, reference, reference_uv)
-    stats["cells"] = int(len(region_couple) - (n_couples - len(heavy)))
+        couples, frames, arcs, arcs_of, heavy, reference, reference_uv, members)
+    stats["cells"] += int(len(region_couple) - (len(members) - len(heavy)))
     region_dirs = couples.directions(frames, region_uv, region_couple)
     region_ref = couples.directions(frames, region_ref_uv[:, None, :], region_couple)[:, 0]
     region_arcs_of = np.bincount(region_arcs.couple, minlength=len(region_couple))
@@ -711,7 +764,7 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
                                         )[region_couple]
     depth = depth_counts(tracer, origin, position[region_couple] + region_ref, own[region_couple],
                          region_arcs_of > 0, couples.light[region_couple], edges)
-    stats["depth_rays"] = len(region_couple)
+    stats["depth_rays"] += len(region_couple)
     # One ray can count too few layers (faces touching or overlapping where it passes, met at one
     # distance) or too many (through an edge two faces share): probe rays to other points of each
     # crossed region, carried back to R across the arcs between, each estimate D(R) too, and the value
@@ -739,29 +792,28 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
     sub = dataclasses.replace(region_arcs, couple=renumber[region_arcs.couple])
     piece_region, p_start, p_end, sign, whole, inconsistent = visible_fans(
         sub, region_dirs[busy], region_count[busy], region_ref[busy], depth[busy])
-    stats["inconsistent_couples"] = inconsistent
+    stats["inconsistent_couples"] += inconsistent
     piece_region = busy[piece_region]
     piece_couple = region_couple[piece_region]
     whole_regions = np.concatenate([plain, busy[whole]])
     uv = np.stack([region_ref_uv[piece_region],
                    _directions_to_uv(couples, frames, piece_couple, p_start),
                    _directions_to_uv(couples, frames, piece_couple, p_end)], axis=1)
-    visible = np.zeros(n_couples, bool)
     visible[piece_couple] = True
     visible[region_couple[whole_regions]] = True
     polygons = (region_couple[whole_regions], trim(region_uv[whole_regions], region_count[whole_regions]),
                 region_count[whole_regions])
-    return uv, piece_couple, sign, polygons, ~visible, stats
+    return uv, piece_couple, sign, polygons
 
 
 def _regions(couples: ReceiverLight, frames: LightFrames, arcs: Arcs, arcs_of: np.ndarray, heavy: np.ndarray,
-             reference: np.ndarray, reference_uv: np.ndarray):
+             reference: np.ndarray, reference_uv: np.ndarray, members: np.ndarray):
     """Each couple's light as one region, except the ``heavy`` couples', cut into a grid of cells (about
     CELL_TARGET arcs each). Returns region_couple (R,), region_uv (R, W, 2), region_count (R,), the arcs
     per region (``Arcs`` whose ``couple`` is the region, sorted, jumps relative to each region's reference
-    point) and the regions' reference points (R, 2)."""
+    point) and the regions' reference points (R, 2). ``members`` are the couples (of ``arcs``) to cut up."""
     n_couples = len(couples.count)
-    light_couples = np.setdiff1d(np.arange(n_couples), heavy)
+    light_couples = np.setdiff1d(members, heavy)
     region_of_couple = np.full(n_couples, -1, np.int64)
     region_of_couple[light_couples] = np.arange(len(light_couples))
     kept = arcs.take(np.flatnonzero(region_of_couple[arcs.couple] >= 0))
