@@ -230,14 +230,16 @@ def test_normal_cones_drop_only_edges_the_exact_test_drops(flip):
 
 def test_batches_and_chunks_follow_the_budget_and_change_nothing(monkeypatch):
     """Pass 2's pixel batches shrink with the memory budget (``pixel_batch_for``: per light and vertex),
-    and regions are worked out per chunk of couples: a small budget and tiny chunks give the default's
-    image to rounding."""
+    regions are worked out per chunk of couples and the signed terms integrated per chunk of terms: a
+    small budget and tiny chunks give the default's image to rounding."""
+    from lazyvis_addon.core import illumination
     frames = light_frames(plane_under_light().lights)
     assert silhouettes.pixel_batch_for(64.0, 2, frames) < silhouettes.pixel_batch_for(2048.0, 2, frames)
     assert silhouettes.pixel_batch_for(1.0, 8, frames) == silhouettes.MIN_PIXEL_BATCH
     scene = plane_under_light(resolution=24, blocker=leaves(60, seed=5))
     default = render(scene, CENTRES)
     monkeypatch.setattr(silhouettes, "ARC_CHUNK", 16)
+    monkeypatch.setattr(illumination, "TERM_CHUNK", 7)
     monkeypatch.setattr(silhouettes, "COUPLE_VERTEX_BYTES", 1 << 17)  # batches of a few hundred pixels
     assert silhouettes.pixel_batch_for(64.0, 2, frames) < 24 * 24
     small = render(scene, CENTRES.replace(memory_budget_mb=64.0))

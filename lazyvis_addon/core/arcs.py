@@ -56,7 +56,9 @@ def test_rows(edges, frames, couples, position: np.ndarray, own_triangle: np.nda
         f64(edges.third), i64(edges.triangle), i64(edges.light), f64(edges.face_normal), f64(edges.face_offset),
         f64(edges.face_size), i64(couples.light), f64(couples.side), f64(frames.origin), f64(frames.normal),
         f64(frames.area), f64(cone), np.ascontiguousarray(cone_valid, np.bool_), f64(bound), f64(reference))
-    return couple[keep], start, end, normal, enter, leave, jump
+    # Copies: the kernel's outputs are slices of buffers sized for every row, which a batch's list of arcs
+    # would keep alive (the tree at 256 px: 1 GB of them per batch).
+    return couple[keep], start.copy(), end.copy(), normal.copy(), enter.copy(), leave.copy(), jump.copy()
 
 
 @njit(cache=True, nogil=True)
@@ -224,7 +226,7 @@ def arcs_in_cells(start: np.ndarray, end: np.ndarray, normal: np.ndarray, toward
     while True:  # the rows outgrow their estimate: again with four times the room
         arc, cone, enter, leave, complete = _arcs_in_cells(*arrays, capacity)
         if complete:
-            return arc, cone, enter, leave
+            return arc.copy(), cone.copy(), enter.copy(), leave.copy()  # not views of the larger buffers
         capacity *= 4
 
 

@@ -67,7 +67,8 @@ def visible_fans(arcs, light_dirs: np.ndarray, light_count: np.ndarray, referenc
     while True:  # the output outgrows its estimate rarely: then again with twice the room
         couple, start, end, sign, whole, inconsistent = _fans(*inputs, capacity)
         if inconsistent >= 0:
-            return couple, start, end, sign, whole, int(inconsistent)
+            # Copies: the slices would keep the whole (larger) buffers alive.
+            return couple.copy(), start.copy(), end.copy(), sign.copy(), whole, int(inconsistent)
         capacity *= 2
 
 

@@ -48,11 +48,12 @@ def walk_tree(edges, leaf_size: int, low: np.ndarray, high: np.ndarray, toward: 
               np.ascontiguousarray(side_valid, np.bool_), np.ascontiguousarray(query_light, np.int64),
               f64(group_low), f64(group_high))
     capacity = max(1024, 64 * len(low))
-    while True:  # the pairs outgrow their estimate: again with four times the room
-        query, record, complete = _walk(*arrays, edges.n_leaves, leaf_size, capacity)
-        if complete:
-            return query, record
-        capacity *= 4
+    while True:  # the pairs outgrow their estimate: again, with room for the rate seen so far
+        query, record, reached = _walk(*arrays, edges.n_leaves, leaf_size, capacity)
+        if reached == len(low):
+            # Copies: the slices would keep the whole (larger) buffers alive for the rest of the batch.
+            return query.copy(), record.copy()
+        capacity = int(1.25 * capacity * len(low) / max(reached, 1)) + 1024
 
 
 @njit(cache=True, nogil=True)
@@ -164,11 +165,11 @@ def _walk(node_low, node_high, node_axis, node_spread, record_low, record_high, 
                                           group_high[q]):
                     continue
                 if m == capacity:
-                    return out_query, out_record, False
+                    return out_query, out_record, q
                 out_query[m] = q
                 out_record[m] = r
                 m += 1
-    return out_query[:m], out_record[:m], True
+    return out_query[:m], out_record[:m], len(low)
 
 
 def compile_walk() -> None:
