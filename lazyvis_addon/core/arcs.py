@@ -79,7 +79,6 @@ def _rows(couple, record, position, own_triangle, edge_start, edge_end, third, t
     cross = np.empty(3)
     m = 0
     n_faces = face_normal.shape[1]
-    n_planes = cone.shape[1]
     for row in range(n):
         c, r = couple[row], record[row]
         for k in range(3):

@@ -149,6 +149,23 @@ def _near_depth(seg_start, seg_end, t_mid, own, first, n, start, end, normal, ju
 
 
 @njit(cache=True, nogil=True)
+def _breakpoints(seg_start, seg_end, low, high, skip, first, n, start, end, normal, splits, va, vb, point):
+    """The carrier seg_start -> seg_end's part low .. high cut where the arcs (not ``skip``) cross it: the
+    sorted parameters low, the crossings strictly inside, high, written to ``splits``; returns their
+    count. (A light edge's crossings all lie inside its 0 .. 1; an arc's may fall outside its cone range.)"""
+    s = _split(seg_start, seg_end, first, n, start, end, normal, skip, splits, va, vb, point)
+    kept = 0
+    for q in range(s):
+        if splits[q] > low and splits[q] < high:
+            splits[kept] = splits[q]
+            kept += 1
+    splits[kept] = low
+    splits[kept + 1] = high
+    _sort(splits, kept + 2)
+    return kept + 2
+
+
+@njit(cache=True, nogil=True)
 def _sort(values, n):
     """Sort values[:n] in place (insertion sort: a few dozen splits per carrier)."""
     for i in range(1, n):
@@ -191,13 +208,9 @@ def _fans(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_dirs
         for k in range(count):
             seg_start = light_dirs[c, k]
             seg_end = light_dirs[c, k + 1 if k + 1 < count else 0]
-            s = _split(seg_start, seg_end, first, n, start, end, normal, -1, splits, va, vb, point)
-            splits[s] = 0.0
-            splits[s + 1] = 1.0
-            _sort(splits, s + 2)
-            ts = splits
-            for q in range(s + 1):
-                t0, t1 = ts[q], ts[q + 1]
+            cuts = _breakpoints(seg_start, seg_end, 0.0, 1.0, -1, first, n, start, end, normal, splits, va, vb, point)
+            for q in range(cuts - 1):
+                t0, t1 = splits[q], splits[q + 1]
                 if not t1 > t0 + MIN_PIECE:
                     continue
                 d_near = _near_depth(seg_start, seg_end, 0.5 * (t0 + t1), -1, first, n, start, end, normal, jump,
@@ -215,18 +228,10 @@ def _fans(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_dirs
         whole[c] = is_whole
         # Arc pieces: a boundary where D <= 0 on one side only.
         for i in range(first, first + n):
-            s = _split(start[i], end[i], first, n, start, end, normal, i, splits, va, vb, point)
-            kept = 0
-            for q in range(s):
-                if splits[q] > enter[i] and splits[q] < leave[i]:
-                    splits[kept] = splits[q]
-                    kept += 1
-            splits[kept] = enter[i]
-            splits[kept + 1] = leave[i]
-            _sort(splits, kept + 2)
-            ts = splits
-            for q in range(kept + 1):
-                t0, t1 = ts[q], ts[q + 1]
+            cuts = _breakpoints(start[i], end[i], enter[i], leave[i], i, first, n, start, end, normal, splits, va, vb,
+                                point)
+            for q in range(cuts - 1):
+                t0, t1 = splits[q], splits[q + 1]
                 if not t1 > t0 + MIN_PIECE:
                     continue
                 d_near = _near_depth(start[i], end[i], 0.5 * (t0 + t1), i, first, n, start, end, normal, jump,

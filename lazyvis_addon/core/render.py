@@ -177,13 +177,14 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
             covered = settings.aa_coverage_rays > 0
             # With coverage the pixel's centre, shaded already, is one of its samples.
             drawn = counts - 1 if covered else counts
+            strata = surface_strata(scene)  # the surfaces coverage tells apart: once per render
             drawn, rgba, position, triangle = _shade_until_settled(pixels, drawn, contrast, surface, radiance,
-                                                                   shading)
+                                                                   strata, shading)
             counts = drawn + 1 if covered else drawn
             stats["aa_samples_shaded"] = int(drawn.sum())
             if covered:
                 pooled = _pool_with_coverage(scene, tracer, surface, radiance, pixels, drawn, rgba, position, triangle,
-                                             settings, pixel_global, stats)
+                                             strata, settings, pixel_global, stats)
             else:
                 owner = np.repeat(np.arange(len(pixels)), counts)
                 pooled = pool_samples(rgba, position, owner, pixels, counts, camera.window, settings)
@@ -457,12 +458,13 @@ def _shade_samples(pixels: np.ndarray, counts: np.ndarray, scene: Scene, tracer,
 
 
 def _shade_until_settled(pixels: np.ndarray, drawn: np.ndarray, contrast: np.ndarray, surface: SurfacePoints,
-                         radiance: np.ndarray, shading: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                         radiance: np.ndarray, strata: np.ndarray, shading: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Shade the anti-aliasing samples of ``pixels`` (P,): a pilot of ``PILOT_SAMPLES`` each, then the rest
     of ``drawn`` (P,) only where the pilot has not settled (``antialias.settled_pixels``).
 
     ``contrast`` (P,) is each pixel's radiance step to its neighbours, ``surface`` and ``radiance`` (H * W, 3)
-    pass 1's centres over the window, ``shading`` the arguments ``_shade_samples`` takes after the counts.
+    pass 1's centres over the window, ``strata`` (T,) ``surface_strata``, ``shading`` the arguments
+    ``_shade_samples`` takes after the counts.
     Returns the samples drawn per pixel (P,) int64 and ``_shade_samples``' RGBA, positions and triangles of
     them, pixel-major: each pixel's pilot, then its further samples (the next points of its sequence).
     """
@@ -472,7 +474,6 @@ def _shade_until_settled(pixels: np.ndarray, drawn: np.ndarray, contrast: np.nda
     rest = drawn - pilot
     if not rest.any():
         return drawn, rgba, position, triangle
-    strata = surface_strata(scene)
     centre = surface.take(pixels)
     centre_rgba = sample_rgba(radiance[pixels], centre, scene, settings)
     centre_stratum = stratum_of(centre.index_triangle, strata)
@@ -511,7 +512,7 @@ def _ranks(counts: np.ndarray) -> np.ndarray:
 
 def _pool_with_coverage(scene: Scene, tracer, surface: SurfacePoints, radiance: np.ndarray, pixels: np.ndarray,
                         drawn: np.ndarray, rgba: np.ndarray, position: np.ndarray, triangle: np.ndarray,
-                        settings: Settings, pixel_global: np.ndarray, stats: dict) -> np.ndarray:
+                        strata: np.ndarray, settings: Settings, pixel_global: np.ndarray, stats: dict) -> np.ndarray:
     """Filtered RGBA (P, 4) of the anti-aliased ``pixels`` from their ``drawn`` (P,) shaded samples (RGBA
     (N, 4), raster positions (N, 2), triangles seen (N,)), coverage rays and the centres of the pixels
     under their filters (pass 1's radiance (H * W, 3) over the window's ``surface``).
@@ -520,7 +521,6 @@ def _pool_with_coverage(scene: Scene, tracer, surface: SurfacePoints, radiance: 
     cheap coverage rays, and the shaded points only average within each surface (``pool_samples``).
     """
     camera = scene.camera
-    strata = surface_strata(scene)
     sample_stratum = stratum_of(triangle, strata)
     coverage = pixel_coverage(scene, tracer, pixels, drawn, sample_stratum, strata, settings, pixel_global)
     stats["aa_coverage_rays"] = coverage.rays

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import arcs as arcs_module, arrangement as arrangement_module, detection as detection_module
-from .arcs import SIGN_EPS, arcs_in_cells, compile_rows, test_rows
+from .arcs import arcs_in_cells, compile_rows, test_rows
 from .arrangement import compile_arrangement, jumps_between, visible_fans
 from .detection import compile_walk, may_be_silhouette, walk_tree
 from .blockers import _rank_within, _unique_points
