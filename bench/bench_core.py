@@ -114,7 +114,7 @@ def main() -> int:
     print(f"\nanalytic render: {analytic_seconds:.2f} s (target < {TARGET_SECONDS:g} s)")
     for stage, seconds in stats["stage_seconds"].items():
         print(f"  {stage:<20s} {seconds:7.2f} s")
-    counters = ("rays_cast", "edge_records", "edge_tests", "arcs", "cells", "depth_rays", "inconsistent_couples",
+    counters = ("rays_cast", "edge_records", "nodes_visited", "edge_tests", "arcs", "cells", "depth_rays", "inconsistent_couples",
                 "shadow_rays", "seeds", "pairs", "pairs_stored", "fill_tests", "pieces")
     print("  " + ", ".join(f"{name} {stats[name]:,}" for name in counters if name in stats))
     # The paper's method (Visibility > Blocker Map) beside it; its shadow rays also size the MC floors below.

@@ -50,7 +50,7 @@ from lazyvis_addon.core.exr import read_exr  # noqa: E402
 
 SAMPLES = ("floating_boxes", "suzanne", "suzanne_dense", "suzanne_dense3", "tree", "chairs", "chapel")
 DEFAULT_BLENDS = [ROOT / "sample_blends" / f"{name}.blend" for name in SAMPLES]
-COUNTERS = ("edge_records", "edge_tests", "arcs", "pieces", "depth_rays", "inconsistent_couples",
+COUNTERS = ("edge_records", "nodes_visited", "edge_tests", "arcs", "pieces", "depth_rays", "inconsistent_couples",
             "pairs_stored", "max_blockers_per_couple")
 CYCLES_ERROR_FLOOR, ERROR_TARGET = 0.01, 1e-4  # Cycles to max(LazyVis error, 1 %); LazyVis vs reference
 BOXES_TIME_FACTOR, DENSE3_TIME_FACTOR = 2.0, 1.5

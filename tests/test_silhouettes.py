@@ -122,18 +122,21 @@ def test_stacked_plates_and_a_pole_through_the_lights_plane():
     assert (edges.light >= 0).sum() == 8  # the pole's 8 side triangles cross the light's plane
 
 
-def test_foliage_cells_and_batches_change_nothing(monkeypatch):
+def test_foliage_cells_and_buffers_change_nothing(monkeypatch):
     """Many leaves over a floor: couples crossed by many arcs are cut into cells, each with its own
-    reference depth; cells, no cells and small arc-test batches give the same image, the reference's."""
+    reference depth; cells, no cells and detection's arc buffers outgrown again and again (each walk goes
+    on in a new buffer from the query it was in) give the same image, the reference's."""
+    from lazyvis_addon.core import detection
     scene = plane_under_light(resolution=12, blocker=leaves(150, seed=3))
     image, reference = exact(scene)
     assert_exact(image, reference)
     out = render(scene, CENTRES)
     assert out.stats["cells"] > 0
     monkeypatch.setattr(silhouettes, "CELL_ARCS", 10 ** 9)
-    monkeypatch.setattr(silhouettes, "ROW_BATCH", silhouettes.MIN_ROW_BATCH)
-    whole = render(scene, CENTRES.replace(memory_budget_mb=64.0))
-    assert whole.stats["cells"] == 0
+    monkeypatch.setattr(detection, "ARCS_PER_COUPLE", 0)
+    monkeypatch.setattr(detection, "MIN_ARC_BUFFER", 1)
+    whole = render(scene, CENTRES)
+    assert whole.stats["cells"] == 0 and whole.stats["arcs"] == out.stats["arcs"]
     np.testing.assert_allclose(whole.combined, out.combined, rtol=1e-9, atol=1e-12)
 
 
@@ -194,38 +197,30 @@ def test_arrangement_kernel_on_hand_made_arcs():
 
 
 @pytest.mark.parametrize("flip", [False, True])
-def test_normal_cones_drop_only_edges_the_exact_test_drops(flip):
-    """The tree walk skips a node whose faces all face a receiver group one way (``_normal_cones``): on a
-    dense sphere over a floor (and with every other face's winding flipped, where the cones widen and
-    give up) the walk with the cones returns exactly the candidates of the walk without them, for groups on
-    the floor and on the sphere itself. On the consistently wound sphere the cones are tight enough to
-    drop nodes, and do."""
-    from lazyvis_addon.core import detection
+def test_normal_cones_drop_only_edges_the_exact_test_drops(flip, monkeypatch):
+    """Detection skips a node whose faces all face a receiver group, or one receiver, one way
+    (``_normal_cones``): on a dense sphere over a floor, seen on the floor and on the sphere itself (and
+    with every other face's winding flipped, where the cones widen and give up), the render with the
+    cones finds exactly the arcs of the render without them, pixel for pixel. On the consistently wound
+    sphere the cones are tight enough to spare visits to the tree's nodes, and do."""
     sphere = uv_sphere((0.0, 0.0, 0.5), 0.3, rings=24, segments=32)
     if flip:
         sphere[::2] = sphere[::2, ::-1]
-    scene = plane_under_light(resolution=16, blocker=sphere)
-    frames = light_frames(scene.lights)
-    edges = MeshEdges.from_triangles(scene.triangles, frames)
-    rng = np.random.default_rng(4)
-    centre = np.concatenate([rng.uniform(-0.8, 0.8, (40, 2)), np.zeros((40, 1))], axis=1)
-    centre[:10] = sphere[rng.integers(0, len(sphere), 10), 0]  # groups on the sphere itself
-    low, high = centre - 0.02, centre + 0.02
-    height = 1.0 - low[:, 2]  # the light's plane is z = 1, facing down
-    args = (frames, low, high, np.arange(len(centre)), np.zeros(len(centre), np.int64), np.ones(len(centre)), height)
-    with_cones = silhouettes.candidate_edges(edges, *args)
-    blind = dataclasses.replace(edges, node_spread=np.full_like(edges.node_spread, np.inf))
-    without = silhouettes.candidate_edges(blind, *args)
-    np.testing.assert_array_equal(with_cones[0], without[0])
-    np.testing.assert_array_equal(with_cones[1], without[1])
-    leaves = slice(edges.n_leaves - 1, None)
-    dropped = sum(detection._one_sided(edges.node_axis[n], edges.node_spread[n], edges.node_low[n],
-                                       edges.node_high[n], low[q], high[q])
-                  for q in range(len(centre)) for n in range(edges.n_leaves - 1, len(edges.node_spread)))
+    scene = plane_under_light(resolution=24, blocker=sphere)
+    with_cones = render(scene, CENTRES)
+    edges = MeshEdges.from_triangles(scene.triangles, light_frames(scene.validated().lights))
+    leaves = edges.node_spread[edges.n_leaves - 1:]
+    cones = silhouettes._normal_cones
+    monkeypatch.setattr(silhouettes, "_normal_cones",
+                        lambda *args: (cones(*args)[0], np.full(len(cones(*args)[1]), np.inf)))
+    without = render(scene, CENTRES)
+    assert with_cones.stats["arcs"] == without.stats["arcs"] > 0
+    np.testing.assert_array_equal(with_cones.combined, without.combined)
+    np.testing.assert_array_equal(with_cones.blocker_count, without.blocker_count)
     if not flip:
-        assert dropped > 0
+        assert with_cones.stats["nodes_visited"] < without.stats["nodes_visited"]
     else:  # mixed windings: a sphere leaf's normals point both ways, so its cone covers every direction
-        assert (edges.node_spread[leaves][np.isfinite(edges.node_spread[leaves])] > 1.0).mean() > 0.5
+        assert (leaves[np.isfinite(leaves)] > 1.0).mean() > 0.5
 
 
 def test_batches_and_chunks_follow_the_budget_and_change_nothing(monkeypatch):
@@ -235,13 +230,14 @@ def test_batches_and_chunks_follow_the_budget_and_change_nothing(monkeypatch):
     from lazyvis_addon.core import illumination
     frames = light_frames(plane_under_light().lights)
     assert silhouettes.pixel_batch_for(64.0, 2, frames) < silhouettes.pixel_batch_for(2048.0, 2, frames)
-    assert silhouettes.pixel_batch_for(1.0, 8, frames) == silhouettes.MIN_PIXEL_BATCH
+    with pytest.raises(MemoryError, match="memory budget of 1 MB is too small"):
+        silhouettes.pixel_batch_for(1.0, 8, frames)
     scene = plane_under_light(resolution=24, blocker=leaves(60, seed=5))
     default = render(scene, CENTRES)
     monkeypatch.setattr(silhouettes, "ARC_CHUNK", 16)
     monkeypatch.setattr(illumination, "TERM_CHUNK", 7)
-    monkeypatch.setattr(silhouettes, "COUPLE_VERTEX_BYTES", 1 << 17)  # batches of a few hundred pixels
+    monkeypatch.setattr(silhouettes, "COUPLE_VERTEX_BYTES", 1 << 12)  # batches of a few hundred pixels
     assert silhouettes.pixel_batch_for(64.0, 2, frames) < 24 * 24
-    small = render(scene, CENTRES.replace(memory_budget_mb=64.0))
+    small = render(scene, CENTRES.replace(memory_budget_mb=64.0, threads=2))
     np.testing.assert_allclose(small.combined, default.combined, rtol=1e-9, atol=1e-12)
     assert small.stats["arcs"] == default.stats["arcs"]

@@ -1,14 +1,13 @@
-"""From edge records to arcs: the exact per-receiver test of the candidates that detection found.
+"""From edge records to arcs: the exact per-receiver test of the candidates that detection finds.
 
-Detection (``silhouettes.candidate_edges``) gives (couple, edge record) rows: edges that may be a
-silhouette somewhere near a group of receivers and may cross the light. Each row is tested here at its
-own receiver: the jump (the sum over the edge's faces of the side each face's third vertex lies on), the
-part in front of the light's plane, a quick rejection by the light's bounding quad and the exact range
-inside the light's cone. Rows that pass become arcs.
+Detection's walk (``detection``) meets (couple, edge record) pairs: edges that may be a silhouette
+somewhere near a group of receivers and may cross the light. Each is tested here at its own receiver:
+the jump (``jump_at``: the sum over the edge's faces of the side each face's third vertex lies on), then,
+for the few whose jump is not 0 (``arc_test``), the part in front of the light's plane, a quick rejection
+by the light's bounding quad and the exact range inside the light's cone. Those are the arcs.
+Heavy couples' arcs are then assigned to the cells of a grid over the light (``arcs_in_cells``).
 
-Millions of rows of a hundred flops each: compiled with Numba, one row after another, the GIL released
-(the render's thread pool runs batches side by side). As numpy array passes the same test spent most of
-its time on (row, face) temporaries (the tree sample at 64 px: 7 s of 14 s in pass 2).
+Millions of pairs of a few dozen flops each: compiled with Numba, called from detection's kernel.
 """
 
 from __future__ import annotations
@@ -24,138 +23,109 @@ SIGN_EPS = 1e-12
 ON_BOUNDARY = 1.0 - 1e-13
 
 
-def test_rows(edges, frames, couples, position: np.ndarray, own_triangle: np.ndarray, cone: np.ndarray,
-              cone_valid: np.ndarray, bound: np.ndarray, reference: np.ndarray, couple: np.ndarray,
-              record: np.ndarray):
-    """Test (couple, edge record) rows: the edges whose jump is not 0 and whose front part crosses the cone.
+# Columns of a couple table (``couple_table``), one row per (receiver, light) couple: the receiver, the
+# triangle it lies on, the light's plane (unit normal towards the receiver, its offset: height of y above
+# it = n . y - offset), the square root of the light's area (a length scale), the direction from the
+# receiver to the reference point R and the inward normals of the cone through the light's bounding quad.
+COUPLE_POSITION, COUPLE_OWN, COUPLE_TOWARD, COUPLE_OFFSET, COUPLE_SIZE, COUPLE_REFERENCE, COUPLE_BOUND = \
+    0, 3, 4, 7, 8, 9, 12
+COUPLE_WIDTH = 24
 
-    Parameters
-    ----------
-    edges : ``silhouettes.MeshEdges``; frames : ``LightFrames``; couples : ``ReceiverLight`` (Nc couples).
-    position : (Nc, 3) float64   each couple's receiver; own_triangle : (Nc,) int64 the triangle it lies on.
-    cone : (Nc, V, 3) float64    inward unit normals of the planes through the receiver and the light's edges.
-    cone_valid : (Nc, V) bool
-    bound : (Nc, 4, 3) float64   inward normals of the cone through the light's bounding quad (quick test).
-    reference : (Nc, 3) float64  direction from the receiver to the reference point R.
-    couple, record : (N,) int64  the rows.
 
-    Returns
-    -------
-    couple (S,) int64, start, end, normal (S, 3) float64 (directions from the receiver; normal = start x
-    end), enter, leave (S,) float64 (the range inside the cone, 0 <= enter < leave <= 1), jump (S,) int64
-    (change of D crossing the arc from R's side to the other), for the rows that are arcs, in row order.
-    """
-    def f64(a):
-        return np.ascontiguousarray(a, np.float64)
+def couple_table(position: np.ndarray, own_triangle: np.ndarray, light: np.ndarray, side: np.ndarray,
+                 frames, reference: np.ndarray, bound: np.ndarray) -> np.ndarray:
+    """(Nc, COUPLE_WIDTH) float64 rows of what the arc test reads per couple: position (Nc, 3), own_triangle
+    (Nc,) int64, light (Nc,) int64 and side (Nc,) float64 (+1 / -1), ``LightFrames``, reference (Nc, 3),
+    bound (Nc, 4, 3)."""
+    toward = side[:, None] * frames.normal[light]
+    offset = np.einsum("nk,nk->n", toward, frames.origin[light])
+    table = np.concatenate([position, own_triangle[:, None].astype(np.float64), toward, offset[:, None],
+                            np.sqrt(frames.area[light])[:, None], reference, bound.reshape(-1, 12)], axis=1)
+    assert table.shape[1] == COUPLE_WIDTH
+    return np.ascontiguousarray(table)
 
-    def i64(a):
-        return np.ascontiguousarray(a, np.int64)
 
-    keep, start, end, normal, enter, leave, jump = _rows(
-        i64(couple), i64(record), f64(position), i64(own_triangle), f64(edges.start), f64(edges.end),
-        f64(edges.third), i64(edges.triangle), i64(edges.light), f64(edges.face_normal), f64(edges.face_offset),
-        f64(edges.face_size), i64(couples.light), f64(couples.side), f64(frames.origin), f64(frames.normal),
-        f64(frames.area), f64(cone), np.ascontiguousarray(cone_valid, np.bool_), f64(bound), f64(reference))
-    # Copies: the kernel's outputs are slices of buffers sized for every row, which a batch's list of arcs
-    # would keep alive (the tree at 256 px: 1 GB of them per batch).
-    return couple[keep], start.copy(), end.copy(), normal.copy(), enter.copy(), leave.copy(), jump.copy()
+@njit(cache=True, nogil=True, inline="always")
+def jump_at(couple, r, edge_start, third, triangle, cut_light, face_normal, face_offset, face_size):
+    """The change of depth complexity across edge record ``r``'s arc as the receiver of ``couple`` (a row of
+    a couple table) sees it, up to its sign: the sum over the edge's faces (not the receiver's own) of the
+    side of the plane through the receiver and the edge that the face's third vertex lies on,
+    sign(m . (a - x)) with the face's normal m = (b - a) x (c - a). 0 for an edge between two faces seen
+    from one side: no arc. Records as ``silhouettes.MeshEdges`` holds them."""
+    x0, x1, x2 = couple[COUPLE_POSITION], couple[COUPLE_POSITION + 1], couple[COUPLE_POSITION + 2]
+    reach = max(abs(edge_start[r, 0] - x0), abs(edge_start[r, 1] - x1), abs(edge_start[r, 2] - x2))
+    total = 0.0
+    for f in range(face_normal.shape[1]):
+        value = face_offset[r, f] - (face_normal[r, f, 0] * x0 + face_normal[r, f, 1] * x1 + face_normal[r, f, 2] * x2)
+        if not abs(value) > SIGN_EPS * face_size[r, f] * reach:
+            continue
+        if triangle[r, f] == couple[COUPLE_OWN]:
+            continue
+        if cut_light[r] >= 0:  # a cut segment's vertex behind the light (from the receiver's side) counts 0
+            away = third[r, f, 0] * couple[COUPLE_TOWARD] + third[r, f, 1] * couple[COUPLE_TOWARD + 1] + \
+                third[r, f, 2] * couple[COUPLE_TOWARD + 2] - couple[COUPLE_OFFSET]
+            if not away > 0:
+                continue
+        total += 1.0 if value > 0 else -1.0
+    return total
 
 
 @njit(cache=True, nogil=True)
-def _rows(couple, record, position, own_triangle, edge_start, edge_end, third, triangle, cut_light, face_normal,
-          face_offset, face_size, couple_light, couple_side, light_origin, light_normal, light_area, cone,
-          cone_valid, bound, reference):
-    n = len(couple)
-    keep = np.empty(n, np.int64)
-    out_start = np.empty((n, 3))
-    out_end = np.empty((n, 3))
-    out_normal = np.empty((n, 3))
-    out_enter = np.empty(n)
-    out_leave = np.empty(n)
-    out_jump = np.empty(n, np.int64)
-    a = np.empty(3)
-    b = np.empty(3)
-    x = np.empty(3)
-    cross = np.empty(3)
-    m = 0
-    n_faces = face_normal.shape[1]
-    for row in range(n):
-        c, r = couple[row], record[row]
+def arc_test(couple, cone, cone_valid, r, total, edge_start, edge_end, scratch, out_start, out_end, out_normal,
+             out_enter, out_leave, out_jump, m):
+    """Whether edge record ``r`` (start, end (E, 3)), whose ``jump_at`` is ``total`` (not 0), is an arc
+    crossing the light of ``couple`` (a row of a couple table; cone (V, 3) inward unit normals of the planes
+    through the receiver and its clipped light's edges, cone_valid (V,)); if so it is written to row ``m``
+    of the outputs. scratch: (4, 3).
+    Outputs: start, end, normal (S, 3) directions from the receiver (normal = start x end), enter, leave
+    (S,) the range inside the cone (0 <= enter < leave <= 1), jump (S,) int64 (change of D crossing the arc
+    from R's side to the other).
+    """
+    a, b, cross = scratch[0], scratch[1], scratch[3]
+    for k in range(3):
+        a[k] = edge_start[r, k] - couple[COUPLE_POSITION + k]
+        b[k] = edge_end[r, k] - couple[COUPLE_POSITION + k]
+    _cross(a, b, cross)
+    reference_side = cross[0] * couple[COUPLE_REFERENCE] + cross[1] * couple[COUPLE_REFERENCE + 1] + \
+        cross[2] * couple[COUPLE_REFERENCE + 2]
+    jump = -(1.0 if reference_side >= 0 else -1.0) * total
+    # Front part: height above the light's plane (on the receiver's side) > eps.
+    height_a = -couple[COUPLE_OFFSET]
+    height_b = -couple[COUPLE_OFFSET]
+    for k in range(3):
+        height_a += edge_start[r, k] * couple[COUPLE_TOWARD + k]
+        height_b += edge_end[r, k] * couple[COUPLE_TOWARD + k]
+    scale = couple[COUPLE_SIZE] + max(abs(a[0]), abs(a[1]), abs(a[2])) + max(abs(b[0]), abs(b[1]), abs(b[2]))
+    eps = PLANE_EPS * scale
+    front_a, front_b = height_a > eps, height_b > eps
+    if not (front_a or front_b):
+        return False
+    if front_a != front_b:
+        t_plane = (height_a - eps) / (height_a - height_b)
         for k in range(3):
-            x[k] = position[c, k]
-        light = couple_light[c]
-        side = couple_side[c]
-        # Which side of the plane through x and the edge each face's third vertex lies on: the sign of
-        # det(a - x, b - x, c - x) = m . (a - x), with the face's normal m = (b - a) x (c - a) per record.
-        reach = max(abs(edge_start[r, 0] - x[0]), abs(edge_start[r, 1] - x[1]), abs(edge_start[r, 2] - x[2]))
-        total = 0.0
-        for f in range(n_faces):
-            value = face_offset[r, f] - (face_normal[r, f, 0] * x[0] + face_normal[r, f, 1] * x[1]
-                                         + face_normal[r, f, 2] * x[2])
-            if not abs(value) > SIGN_EPS * face_size[r, f] * reach:
-                continue
-            if triangle[r, f] == own_triangle[c]:
-                continue
-            if cut_light[r] >= 0:  # a cut segment's vertex behind the light (from the receiver's side) counts 0
-                away = side * ((third[r, f, 0] - light_origin[light, 0]) * light_normal[light, 0]
-                               + (third[r, f, 1] - light_origin[light, 1]) * light_normal[light, 1]
-                               + (third[r, f, 2] - light_origin[light, 2]) * light_normal[light, 2])
-                if not away > 0:
-                    continue
-            total += 1.0 if value > 0 else -1.0
-        if total == 0.0:
-            continue
-        for k in range(3):
-            a[k] = edge_start[r, k] - x[k]
-            b[k] = edge_end[r, k] - x[k]
-        _cross(a, b, cross)
-        reference_side = cross[0] * reference[c, 0] + cross[1] * reference[c, 1] + cross[2] * reference[c, 2]
-        jump = -(1.0 if reference_side >= 0 else -1.0) * total
-        # Front part: height above the light's plane (on the receiver's side) > eps.
-        height_a = 0.0
-        height_b = 0.0
-        for k in range(3):
-            height_a += (a[k] + x[k] - light_origin[light, k]) * light_normal[light, k]
-            height_b += (b[k] + x[k] - light_origin[light, k]) * light_normal[light, k]
-        height_a *= side
-        height_b *= side
-        scale = np.sqrt(light_area[light]) + max(abs(a[0]), abs(a[1]), abs(a[2])) + \
-            max(abs(b[0]), abs(b[1]), abs(b[2]))
-        eps = PLANE_EPS * scale
-        front_a, front_b = height_a > eps, height_b > eps
-        if not (front_a or front_b):
-            continue
-        if front_a != front_b:
-            t_plane = (height_a - eps) / (height_a - height_b)
-            for k in range(3):
-                cut = a[k] + t_plane * (b[k] - a[k])
-                if front_a:
-                    b[k] = cut
-                else:
-                    a[k] = cut
-        # Quick rejection by the light's bounding quad: both ends beyond one of its cone's planes.
-        beyond = False
-        for v in range(4):
-            va = bound[c, v, 0] * a[0] + bound[c, v, 1] * a[1] + bound[c, v, 2] * a[2]
-            vb = bound[c, v, 0] * b[0] + bound[c, v, 1] * b[1] + bound[c, v, 2] * b[2]
-            if va < 0 and vb < 0:
-                beyond = True
-                break
-        if beyond:
-            continue
-        _cross(a, b, cross)
-        enter, leave, inside = _cone_range(a, b, cross, cone[c], cone_valid[c], -side * light_normal[light, 0],
-                                           -side * light_normal[light, 1], -side * light_normal[light, 2])
-        if not inside:
-            continue
-        keep[m] = row
-        for k in range(3):
-            out_start[m, k] = a[k]
-            out_end[m, k] = b[k]
-            out_normal[m, k] = cross[k]
-        out_enter[m], out_leave[m], out_jump[m] = enter, leave, np.int64(jump)
-        m += 1
-    return keep[:m], out_start[:m], out_end[:m], out_normal[:m], out_enter[:m], out_leave[:m], out_jump[:m]
+            cut = a[k] + t_plane * (b[k] - a[k])
+            if front_a:
+                b[k] = cut
+            else:
+                a[k] = cut
+    # Quick rejection by the light's bounding quad: both ends beyond one of its cone's planes.
+    for v in range(4):
+        plane = COUPLE_BOUND + 3 * v
+        va = couple[plane] * a[0] + couple[plane + 1] * a[1] + couple[plane + 2] * a[2]
+        vb = couple[plane] * b[0] + couple[plane + 1] * b[1] + couple[plane + 2] * b[2]
+        if va < 0 and vb < 0:
+            return False
+    _cross(a, b, cross)
+    enter, leave, inside = _cone_range(a, b, cross, cone, cone_valid, -couple[COUPLE_TOWARD],
+                                       -couple[COUPLE_TOWARD + 1], -couple[COUPLE_TOWARD + 2])
+    if not inside:
+        return False
+    for k in range(3):
+        out_start[m, k] = a[k]
+        out_end[m, k] = b[k]
+        out_normal[m, k] = cross[k]
+    out_enter[m], out_leave[m], out_jump[m] = enter, leave, np.int64(jump)
+    return True
 
 
 @njit(cache=True, nogil=True)
@@ -260,10 +230,7 @@ def _cross(a, b, out):
     out[2] = a[0] * b[1] - a[1] * b[0]
 
 
-def compile_rows() -> None:
-    """Compile ``_rows`` and ``_arcs_in_cells`` (or load them from Numba's cache) on one-row inputs."""
-    f, i, one = np.zeros((1, 3)), np.zeros(1, np.int64), np.zeros(1)
-    _rows(i, i, f, i, f, f, np.zeros((1, 2, 3)), np.zeros((1, 2), np.int64), i, np.zeros((1, 2, 3)),
-          np.zeros((1, 2)), np.zeros((1, 2)), i, one, f, f, one, np.zeros((1, 3, 3)), np.zeros((1, 3), np.bool_),
-          np.zeros((1, 4, 3)), f)
+def compile_cells() -> None:
+    """Compile ``_arcs_in_cells`` (or load it from Numba's cache) on a one-row input."""
+    f, i = np.zeros((1, 3)), np.zeros(1, np.int64)
     _arcs_in_cells(f, f, f, f, np.zeros((1, 4), np.int64), i, i, i, np.zeros((1, 3, 3)), np.zeros((1, 3), np.bool_), 16)

@@ -1,16 +1,22 @@
-"""Detection, compiled: the edge records that may cross a light as seen from some point of a receiver group.
+"""Detection, compiled: the silhouette arcs that cross each couple's light, found by walking the edge tree.
 
-``silhouettes.candidate_edges`` sets up one query per (receiver group, light, side): the box around the
-group and the light, the light's plane and the receivers' height above it, and four side planes of the
-hull of the group's box and the light's bounding rectangle. Here each query walks the edge tree
-(``silhouettes.MeshEdges``: an implicit binary tree over leaves of 32 records in Morton order) depth first,
-keeping the nodes and records that pass every test, and drops the records that are a silhouette nowhere
-in the group's box. The tests only reject what provably cannot cross the light from the group, so the
-result is complete.
+``silhouettes.silhouette_pieces`` sets up one query per (receiver group, light, side): the box around the
+group and the light, the light's plane and the receivers' height above it, four side planes of the hull
+of the group's box and the light's bounding rectangle (``silhouettes.hull_table``), and sub-groups of a
+few receivers with boxes of their own. Each query walks the edge tree (``silhouettes.MeshEdges``: an
+implicit binary tree over leaves of records in Morton order) depth first:
 
-As numpy level-by-level passes over (query, node) arrays this stage took 40 % of pass 2 on the floating
-boxes (2.4 s of 5.9 s at 128 px); a walk per query, compiled with Numba and releasing the GIL, visits the
-same nodes without the temporaries.
+- a node outside the hull, or whose faces all face the group's box one way (its cone of normals), is
+  dropped;
+- at a leaf, a record outside the hull or a silhouette nowhere in the group's box is dropped; then for
+  each sub-group where it may be a silhouette, it is tested exactly at each receiver (``arcs.jump_at``,
+  ``arcs.arc_test``): the records whose depth jump is not 0 and whose front part crosses the light's
+  cone are the arcs.
+
+Every test only rejects what provably cannot cross the light from a receiver of the group, so the arcs
+are complete. One pass from the tree to the arcs: the (group, record) candidates and (receiver, record)
+rows between them are never stored (Suzanne at subdivision level 3, 128 px: 6.7 million candidates and
+31.7 million rows for 0.5 million arcs; as arrays they were pass 2's largest temporaries).
 """
 
 from __future__ import annotations
@@ -18,70 +24,106 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .arcs import SIGN_EPS
+from .arcs import COUPLE_WIDTH, SIGN_EPS, arc_test, couple_table, jump_at
+
+# Columns of a hull table (``silhouettes.hull_table``), one row per receiver group or sub-group: the
+# bounding box of the receivers' box and their light, the light plane's normal towards the receivers and
+# its offset, the plane tolerance, the receivers' largest height above the light, four side planes of the
+# hull (normals, offsets, validity 1 / 0) and the receivers' own box.
+HULL_LOW, HULL_HIGH, HULL_TOWARD, HULL_BASE, HULL_EPS, HULL_HEIGHT = 0, 3, 6, 9, 10, 11
+HULL_SIDE_NORMAL, HULL_SIDE_OFFSET, HULL_SIDE_VALID, HULL_BOX_LOW, HULL_BOX_HIGH = 12, 24, 28, 32, 35
+HULL_WIDTH = 38
+# The arcs' first buffer: this many per couple, at least MIN_ARC_BUFFER; a walk that fills it goes on
+# in a new one from the query it was in.
+ARCS_PER_COUPLE = 8
+MIN_ARC_BUFFER = 1024
 
 
-def walk_tree(edges, leaf_size: int, low: np.ndarray, high: np.ndarray, toward: np.ndarray, base: np.ndarray,
-              eps: np.ndarray, height: np.ndarray, side_normal: np.ndarray, side_offset: np.ndarray,
-              side_valid: np.ndarray, query_light: np.ndarray, group_low: np.ndarray, group_high: np.ndarray
-              ) -> tuple[np.ndarray, np.ndarray]:
-    """(query, record) pairs (P,) int64 each, query-major, records ascending.
+def detect_arcs(edges, leaf_size: int, hulls: np.ndarray, query_light: np.ndarray, units: tuple, member: np.ndarray,
+                couples, frames, position: np.ndarray, own_triangle: np.ndarray, cone: np.ndarray,
+                cone_valid: np.ndarray, bound: np.ndarray, reference: np.ndarray):
+    """The arcs of every couple of the queries, query by query.
 
-    Parameters (Q queries)
+    Parameters (Q queries of U sub-groups of Nc couples)
     ----------
     edges : ``silhouettes.MeshEdges``; leaf_size : records per leaf.
-    low, high : (Q, 3) float64        the box around the group and its light.
-    toward : (Q, 3) float64           unit normal of the light's plane towards the receivers; base : (Q,)
-                                      its offset (toward . x = base on the plane).
-    eps : (Q,) float64                plane tolerance; height : (Q,) the receivers' largest height above it.
-    side_normal : (Q, 4, 3), side_offset : (Q, 4), side_valid : (Q, 4) bool   the hull's side planes.
-    query_light : (Q,) int64          the light (cut segments of other lights are skipped).
-    group_low, group_high : (Q, 3)    the box around the group's receivers alone (the silhouette test).
+    hulls : (Q, HULL_WIDTH) float64       each query's receiver group and light (``silhouettes.hull_table``).
+    query_light : (Q,) int64              the light (cut segments of other lights are skipped).
+    units : the sub-groups, a tuple of
+        query_unit, query_units : (Q,) int64   each query's sub-groups query_unit .. + query_units - 1;
+        unit_hulls : (U, HULL_WIDTH)      each sub-group's receivers and light;
+        unit_first, unit_size : (U,) int64    its couples ``member[first : first + size]``.
+    couples : ``ReceiverLight``; frames : ``LightFrames``; position, own_triangle, cone, cone_valid, bound,
+        reference: per couple, as ``arcs.arc_test`` takes them.
+
+    Returns
+    -------
+    couple (S,) int64, start, end, normal (S, 3) float64, enter, leave (S,) float64, jump (S,) int64 (see
+    ``silhouettes.Arcs``), in query order; the number of (couple, record) pairs tested exactly; the number
+    of tree nodes visited.
     """
     def f64(a):
         return np.ascontiguousarray(a, np.float64)
 
+    def i64(a):
+        return np.ascontiguousarray(a, np.int64)
+
+    query_unit, query_units, unit_hulls, unit_first, unit_size = units
     arrays = (f64(edges.node_low), f64(edges.node_high), f64(edges.node_axis), f64(edges.node_spread),
-              f64(edges.low), f64(edges.high),
-              np.ascontiguousarray(edges.light, np.int64), f64(edges.start), f64(edges.face_normal),
-              f64(low), f64(high), f64(toward), f64(base), f64(eps), f64(height), f64(side_normal), f64(side_offset),
-              np.ascontiguousarray(side_valid, np.bool_), np.ascontiguousarray(query_light, np.int64),
-              f64(group_low), f64(group_high))
-    capacity = max(1024, 64 * len(low))
-    while True:  # the pairs outgrow their estimate: again, with room for the rate seen so far
-        query, record, reached = _walk(*arrays, edges.n_leaves, leaf_size, capacity)
-        if reached == len(low):
-            # Copies: the slices would keep the whole (larger) buffers alive for the rest of the batch.
-            return query.copy(), record.copy()
-        capacity = int(1.25 * capacity * len(low) / max(reached, 1)) + 1024
+              f64(edges.low), f64(edges.high), i64(edges.light), f64(edges.start), f64(edges.end), f64(edges.third),
+              i64(edges.triangle), f64(edges.face_normal), f64(edges.face_offset), f64(edges.face_size),
+              f64(hulls), i64(query_light), i64(query_unit), i64(query_units), f64(unit_hulls), i64(unit_first),
+              i64(unit_size), i64(member),
+              couple_table(position, own_triangle, couples.light, couples.side, frames, reference, bound), f64(cone),
+              np.ascontiguousarray(cone_valid, np.bool_))
+    parts = []
+    tests, visits = 0, 0
+    capacity = max(MIN_ARC_BUFFER, ARCS_PER_COUPLE * len(member))
+    done = 0
+    while done < len(hulls):  # more arcs than the buffer holds: keep what is done, go on from there
+        out = _detect(*arrays, edges.n_leaves, leaf_size, done, capacity)
+        reached, count = out[7], out[8]
+        if reached == done:  # not even one query fitted
+            capacity *= 4
+            continue
+        # Copies: slices would keep the whole buffers alive for the rest of the batch.
+        parts.append(tuple(array[:count].copy() for array in out[:7]))
+        tests += out[9]
+        visits += out[10]
+        done = reached
+    if not parts:
+        return (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0),
+                np.zeros(0, np.int64)), 0, 0
+    return tuple(np.concatenate([part[i] for part in parts]) for i in range(7)), tests, visits
 
 
-@njit(cache=True, nogil=True)
-def _box_passes(q, box_low, box_high, low, high, toward, base, eps, height, side_normal, side_offset, side_valid):
+@njit(cache=True, nogil=True, inline="always")
+def _box_passes(hull, box_low, box_high):
     """The box meets the hull's bounding box, lies not wholly beyond a side plane, and has a point in
-    front of the light's plane and not above every receiver."""
+    front of the light's plane and not above every receiver (``hull``: a row of a hull table)."""
     for k in range(3):
-        if box_low[k] > high[q, k] or box_high[k] < low[q, k]:
+        if box_low[k] > hull[HULL_HIGH + k] or box_high[k] < hull[HULL_LOW + k]:
             return False
+    eps = hull[HULL_EPS]
     for s in range(4):
-        if not side_valid[q, s]:
+        if hull[HULL_SIDE_VALID + s] == 0.0:
             continue
         lowest = 0.0
         for k in range(3):
-            n = side_normal[q, s, k]
+            n = hull[HULL_SIDE_NORMAL + 3 * s + k]
             lowest += n * (box_low[k] if n > 0 else box_high[k])
-        if lowest > side_offset[q, s] + eps[q]:
+        if lowest > hull[HULL_SIDE_OFFSET + s] + eps:
             return False
-    height_max = -base[q]
-    height_min = -base[q]
+    height_max = -hull[HULL_BASE]
+    height_min = -hull[HULL_BASE]
     for k in range(3):
-        w = toward[q, k]
+        w = hull[HULL_TOWARD + k]
         height_max += w * (box_high[k] if w > 0 else box_low[k])
         height_min += w * (box_low[k] if w > 0 else box_high[k])
-    return height_max > eps[q] and height_min < height[q]
+    return height_max > eps and height_min < hull[HULL_HEIGHT]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _one_sided(axis, spread, node_low, node_high, box_low, box_high):
     """Every oriented face normal o within ``spread`` of ``axis`` has o . (a - x) of one sign, with a margin
     above the arc test's sign tolerance, for every edge point a in the node's box and x in the receiver
@@ -97,7 +139,7 @@ def _one_sided(axis, spread, node_low, node_high, box_low, box_high):
     return lowest > margin or highest < -margin
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _may_be_silhouette(start, face_normal, cut, box_low, box_high):
     """False only where the edge's jump is 0 at every point of the box: each of its faces' planes leaves
     the whole box on one side (the plane's range over the box excludes 0) and those sides cancel. Cut
@@ -129,69 +171,80 @@ def _may_be_silhouette(start, face_normal, cut, box_low, box_high):
 
 
 @njit(cache=True, nogil=True)
-def _walk(node_low, node_high, node_axis, node_spread, record_low, record_high, record_light, start, face_normal, low, high, toward, base,
-          eps, height, side_normal, side_offset, side_valid, query_light, group_low, group_high, n_leaves,
-          leaf_size, capacity):
-    out_query = np.empty(capacity, np.int64)
-    out_record = np.empty(capacity, np.int64)
+def _detect(node_low, node_high, node_axis, node_spread, record_low, record_high, record_light, edge_start, edge_end,
+            third, triangle, face_normal, face_offset, face_size, hulls, query_light, query_unit, query_units,
+            unit_hulls, unit_first, unit_size, member, couple_rows, cone, cone_valid, n_leaves, leaf_size, q_start,
+            capacity):
+    out_couple = np.empty(capacity, np.int64)
+    out_start = np.empty((capacity, 3))
+    out_end = np.empty((capacity, 3))
+    out_normal = np.empty((capacity, 3))
+    out_enter = np.empty(capacity)
+    out_leave = np.empty(capacity)
+    out_jump = np.empty(capacity, np.int64)
+    scratch = np.empty((4, 3))
     n_records = len(record_light)
-    stack = np.empty(64, np.int64)
+    stack = np.empty(128, np.int64)
     m = 0
-    for q in range(len(low)):
+    tests = 0
+    visits = 0
+    for q in range(q_start, len(hulls)):
+        m_before, tests_before, visits_before = m, tests, visits
+        hull = hulls[q]
+        group_low, group_high = hull[HULL_BOX_LOW:HULL_BOX_LOW + 3], hull[HULL_BOX_HIGH:HULL_BOX_HIGH + 3]
         depth = 1
         stack[0] = 0
         while depth > 0:
             depth -= 1
             node = stack[depth]
-            if not _box_passes(q, node_low[node], node_high[node], low, high, toward, base, eps, height,
-                               side_normal, side_offset, side_valid):
+            visits += 1
+            if not _box_passes(hull, node_low[node], node_high[node]):
                 continue
-            if _one_sided(node_axis[node], node_spread[node], node_low[node], node_high[node], group_low[q],
-                          group_high[q]):
+            if _one_sided(node_axis[node], node_spread[node], node_low[node], node_high[node], group_low, group_high):
                 continue  # every face under the node faces the whole group one way: no silhouette there
             if node < n_leaves - 1:  # inner node: the left child is visited first
                 stack[depth] = 2 * node + 2
                 stack[depth + 1] = 2 * node + 1
                 depth += 2
                 continue
-            first = (node - (n_leaves - 1)) * leaf_size
-            for r in range(first, min(first + leaf_size, n_records)):
-                if record_light[r] >= 0 and record_light[r] != query_light[q]:
+            leaf_first = (node - (n_leaves - 1)) * leaf_size
+            for r in range(leaf_first, min(leaf_first + leaf_size, n_records)):
+                cut = record_light[r] >= 0
+                if cut and record_light[r] != query_light[q]:
                     continue
-                if not _box_passes(q, record_low[r], record_high[r], low, high, toward, base, eps, height,
-                                   side_normal, side_offset, side_valid):
+                if not _box_passes(hull, record_low[r], record_high[r]):
                     continue
-                if not _may_be_silhouette(start[r], face_normal[r], record_light[r] >= 0, group_low[q],
-                                          group_high[q]):
+                if not _may_be_silhouette(edge_start[r], face_normal[r], cut, group_low, group_high):
                     continue
-                if m == capacity:
-                    return out_query, out_record, q
-                out_query[m] = q
-                out_record[m] = r
-                m += 1
-    return out_query[:m], out_record[:m], len(low)
+                for u in range(query_unit[q], query_unit[q] + query_units[q]):
+                    unit = unit_hulls[u]
+                    if not _box_passes(unit, record_low[r], record_high[r]):
+                        continue
+                    if not _may_be_silhouette(edge_start[r], face_normal[r], cut, unit[HULL_BOX_LOW:HULL_BOX_LOW + 3],
+                                              unit[HULL_BOX_HIGH:HULL_BOX_HIGH + 3]):
+                        continue
+                    for j in range(unit_first[u], unit_first[u] + unit_size[u]):
+                        if m == capacity:  # this query again, with a new buffer
+                            return out_couple, out_start, out_end, out_normal, out_enter, out_leave, out_jump, q, \
+                                m_before, tests_before, visits_before
+                        c = member[j]
+                        tests += 1
+                        couple = couple_rows[c]
+                        total = jump_at(couple, r, edge_start, third, triangle, record_light, face_normal,
+                                        face_offset, face_size)
+                        if total != 0.0 and arc_test(couple, cone[c], cone_valid[c], r, total, edge_start, edge_end,
+                                                     scratch, out_start, out_end, out_normal, out_enter, out_leave,
+                                                     out_jump, m):
+                            out_couple[m] = c
+                            m += 1
+    return out_couple, out_start, out_end, out_normal, out_enter, out_leave, out_jump, len(hulls), m, tests, visits
 
 
-def compile_walk() -> None:
-    """Compile ``_walk`` (or load it from Numba's cache) on a one-query input."""
+def compile_detection() -> None:
+    """Compile ``_detect`` (or load it from Numba's cache) on a one-query input."""
     f, i, one = np.zeros((1, 3)), np.zeros(1, np.int64), np.zeros(1)
-    _walk(f, f, f, one, f, f, i, f, np.zeros((1, 2, 3)), f, f, f, one, one, one, np.zeros((1, 4, 3)), np.zeros((1, 4)),
-          np.zeros((1, 4), np.bool_), i, f, f, 1, 32, 16)
-    _may_be_silhouettes(i, f, np.zeros((1, 2, 3)), i, f, f)
-
-
-def may_be_silhouette(edges, record: np.ndarray, box_low: np.ndarray, box_high: np.ndarray) -> np.ndarray:
-    """(N,) bool per row: edge ``record`` (N,) int64 may be a silhouette somewhere in box (N, 3) x 2."""
-    return _may_be_silhouettes(np.ascontiguousarray(record, np.int64), np.ascontiguousarray(edges.start, np.float64),
-                               np.ascontiguousarray(edges.face_normal, np.float64),
-                               np.ascontiguousarray(edges.light, np.int64), np.ascontiguousarray(box_low, np.float64),
-                               np.ascontiguousarray(box_high, np.float64))
-
-
-@njit(cache=True, nogil=True)
-def _may_be_silhouettes(record, start, face_normal, light, box_low, box_high):
-    out = np.empty(len(record), np.bool_)
-    for row in range(len(record)):
-        r = record[row]
-        out[row] = _may_be_silhouette(start[r], face_normal[r], light[r] >= 0, box_low[row], box_high[row])
-    return out
+    faces = np.zeros((1, 2, 3))
+    hull = np.zeros((1, HULL_WIDTH))
+    _detect(f, f, f, one, f, f, i, f, f, faces, np.zeros((1, 2), np.int64), faces, np.zeros((1, 2)), np.zeros((1, 2)),
+            hull, i, i, i, hull, i, i, i, np.zeros((1, COUPLE_WIDTH)), np.zeros((1, 3, 3)), np.zeros((1, 3), np.bool_), 1,
+            32, 0, 16)

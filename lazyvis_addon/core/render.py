@@ -24,7 +24,7 @@ from .bsdf import SurfaceBsdf
 from .geometry import light_groups
 from .illumination import (VisiblePieces, couple_weights, couples_for, reflected_radiance, standard_mc,
                            verify_visible, visible_pieces)
-from .silhouettes import MeshEdges, compile_kernels, pixel_batch_for, row_batch_for, silhouette_pieces
+from .silhouettes import MeshEdges, compile_kernels, pixel_batch_for, silhouette_pieces
 from .progress import Progress
 from .scene import Scene
 from .settings import Settings
@@ -238,7 +238,7 @@ def _primary(scene: Scene, tracer, extent: float, settings: Settings, progress: 
 
 
 # Counters the silhouette pass adds to the render's stats.
-SILHOUETTE_COUNTERS = ("edge_tests", "arcs", "depth_rays", "inconsistent_couples", "cells")
+SILHOUETTE_COUNTERS = ("nodes_visited", "edge_tests", "arcs", "depth_rays", "inconsistent_couples", "cells")
 
 # Smallest batch split further for threads: per-batch numpy overheads stay well under the work.
 MIN_SHARED_BATCH = 2048
@@ -267,7 +267,6 @@ def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: Bloc
     # Batches of at most pixel_batch, but enough of them to keep every thread busy: anti-aliasing shades
     # sets of a few thousand samples, which one batch would leave to one core.
     threads = thread_count(settings.threads)
-    row_batch = row_batch_for(settings.memory_budget_mb, threads) if edges is not None else 0
     batch = min(settings.pixel_batch, max(MIN_SHARED_BATCH, -(-n_pixels // (4 * threads))))
     if edges is not None:  # the silhouettes' temporaries grow with the lights' vertices
         batch = min(batch, pixel_batch_for(settings.memory_budget_mb, threads, frames))
@@ -289,7 +288,7 @@ def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: Bloc
         local = None
         if edges is not None:
             result, n_pieces, rounds, extra = _shade_silhouettes(part, bsdf, globals_, frames, edges, tracer, settings,
-                                                                 groups, row_batch)
+                                                                 groups)
             return start, stop, result, n_pieces, rounds, (empty, empty, empty, 0), extra
         if settings.integrator != "standard_mc":
             lo, hi = entry_bounds[index], entry_bounds[index + 1]
@@ -340,7 +339,7 @@ def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: Bloc
 
 
 def _shade_silhouettes(part: SurfacePoints, bsdf: SurfaceBsdf, pixel_global: np.ndarray, frames, edges: MeshEdges,
-                       tracer, settings: Settings, groups, row_batch: int) -> tuple[np.ndarray, int, int, dict]:
+                       tracer, settings: Settings, groups) -> tuple[np.ndarray, int, int, dict]:
     """Pass 2 by silhouettes over one batch of N points: radiance (N, 3), terms integrated, most arcs of a
     couple, and the batch's "umbra" (N, L), "arcs_per_pixel" (N,) and SILHOUETTE_COUNTERS."""
     n_points = len(part)
@@ -351,7 +350,7 @@ def _shade_silhouettes(part: SurfacePoints, bsdf: SurfaceBsdf, pixel_global: np.
     for lights in groups:  # lights of similar polygon size: a handful of groups
         couples, couple_pixel = couples_for(part, frames, np.broadcast_to(~lights[None, :], (n_points, len(frames))))
         uv, couple, sign, (whole, whole_uv, whole_count), hidden, found = silhouette_pieces(
-            part, frames, edges, tracer, couples, couple_pixel, row_batch)
+            part, frames, edges, tracer, couples, couple_pixel)
         fans = VisiblePieces(couples, couple_pixel, uv, np.full(len(couple), 3, np.int64), couple,
                              found["max_arcs_per_couple"], sign)
         lights_whole = VisiblePieces(couples, couple_pixel, whole_uv, whole_count, whole,

@@ -39,9 +39,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import arcs as arcs_module, arrangement as arrangement_module, detection as detection_module
-from .arcs import arcs_in_cells, compile_rows, test_rows
+from .arcs import arcs_in_cells, compile_cells
 from .arrangement import compile_arrangement, jumps_between, visible_fans
-from .detection import compile_walk, may_be_silhouette, walk_tree
+from .detection import HULL_WIDTH, compile_detection, detect_arcs
 from .blockers import _rank_within, _unique_points
 from .geometry import PLANE_EPS, LightFrames, ReceiverLight, clip_convex, cross3, trim
 from .illumination import _pad_to
@@ -50,16 +50,11 @@ from .illumination import _pad_to
 LEAF_EDGES = 32
 # Triangles stored per edge record; an edge shared by more (non-manifold) is split over several records.
 MAX_INCIDENCE = 4
-# Receivers per detection group (neighbours in a Morton order of their positions), and per sub-group
-# that a group's candidates are tested against again before each receiver tests them.
+# Receivers per detection query (neighbours in a Morton order of their positions), and per sub-group:
+# a query's receivers share the walk down the edge tree, each sub-group dropping the nodes and edges that
+# are a silhouette nowhere in its box.
 GROUP_POINTS = 16
 SUB_POINTS = 4
-# (receiver, edge) rows per array batch of the arc test, at most; the memory budget may ask for fewer.
-ROW_BATCH = 1 << 18
-# Bytes of temporaries per row of the arc test (gathered records, face signs, clipped segments).
-ROW_BYTES = 1024
-# Fewer rows per batch than this and per-batch overheads would dominate: the budget is too small.
-MIN_ROW_BATCH = 4096
 # A couple crossed by more arcs than this is cut into a grid of cells of about CELL_TARGET arcs each
 # (at most MAX_GRID x MAX_GRID): the arrangement costs the square of the arcs per region.
 CELL_ARCS = 48
@@ -320,35 +315,35 @@ def _morton(points: np.ndarray) -> np.ndarray:
 # Detection: receiver groups against the edge tree
 # ------------------------------------------------------------------------------------------------------
 
-def candidate_edges(edges: MeshEdges, frames: LightFrames, group_low: np.ndarray, group_high: np.ndarray,
-                    query_group: np.ndarray, query_light: np.ndarray, query_side: np.ndarray,
-                    query_height: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Edge records that may cross the light as seen from some point of a receiver group.
+def hull_table(frames: LightFrames, box_low: np.ndarray, box_high: np.ndarray, light: np.ndarray, side: np.ndarray,
+               height: np.ndarray) -> np.ndarray:
+    """The tests of the hull of receiver boxes and their lights, packed in rows for detection
+    (``detection.HULL_*`` name the columns), (N, detection.HULL_WIDTH) float64.
 
     Parameters
     ----------
-    group_low, group_high : (G, 3)    boxes around each group's receivers.
-    query_group, query_light : (Q,)   (group, light) queries.
-    query_side : (Q,) float64         +1 / -1: the side of the light the group's receivers are on.
-    query_height : (Q,) float64       the largest height of the group's receivers above the light.
+    box_low, box_high : (N, 3)    boxes around receivers.
+    light : (N,) int64            the light they see.
+    side : (N,) float64           +1 / -1: the side of the light the receivers are on.
+    height : (N,) float64         the receivers' largest height above the light.
 
-    Returns (query, record) pairs (P,) int64 each. Complete: an edge that crosses the light from a point
-    of the group lies in the box around the group and the light, has a point in front of the light's
-    plane and below the receiver, and is a silhouette for that point, which no test here rejects.
+    An edge that crosses the light from a point of a box lies in the bounding box of the box and the
+    light, inside the hull's four side planes, and has a point in front of the light's plane and below
+    the receiver: what the tests keep.
     """
-    light_points = frames.vertices[query_light]
-    real = np.arange(light_points.shape[1])[None, :] < frames.vertex_count[query_light][:, None]
-    low = np.minimum(group_low[query_group], np.where(real[..., None], light_points, np.inf).min(axis=1))
-    high = np.maximum(group_high[query_group], np.where(real[..., None], light_points, -np.inf).max(axis=1))
-    toward = query_side[:, None] * frames.normal[query_light]               # (Q, 3) away from the light
-    base = np.einsum("qk,qk->q", toward, frames.origin[query_light])
-    scale = np.abs(high).max(axis=1) + np.abs(low).max(axis=1)
-    eps = PLANE_EPS * scale
-
-    side_normal, side_offset, side_valid = _side_planes(frames, query_light, query_side, group_low[query_group],
-                                                        group_high[query_group])
-    return walk_tree(edges, LEAF_EDGES, low, high, toward, base, eps, query_height, side_normal, side_offset,
-                     side_valid, query_light, group_low[query_group], group_high[query_group])
+    light_points = frames.vertices[light]
+    real = np.arange(light_points.shape[1])[None, :] < frames.vertex_count[light][:, None]
+    low = np.minimum(box_low, np.where(real[..., None], light_points, np.inf).min(axis=1))
+    high = np.maximum(box_high, np.where(real[..., None], light_points, -np.inf).max(axis=1))
+    toward = side[:, None] * frames.normal[light]               # (N, 3) away from the light
+    base = np.einsum("qk,qk->q", toward, frames.origin[light])
+    eps = PLANE_EPS * (np.abs(high).max(axis=1) + np.abs(low).max(axis=1))
+    side_normal, side_offset, side_valid = _side_planes(frames, light, side, box_low, box_high)
+    table = np.concatenate([low, high, toward, base[:, None], eps[:, None], height[:, None],
+                            side_normal.reshape(-1, 12), side_offset, side_valid.astype(np.float64), box_low, box_high],
+                           axis=1)
+    assert table.shape[1] == HULL_WIDTH
+    return table
 
 
 def _side_planes(frames: LightFrames, light: np.ndarray, side: np.ndarray, box_low: np.ndarray,
@@ -424,25 +419,6 @@ class Arcs:
     def empty(cls) -> "Arcs":
         return cls(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0),
                    np.zeros(0), np.zeros(0, np.int64))
-
-
-def couple_arcs(edges: MeshEdges, frames: LightFrames, couples: ReceiverLight, position: np.ndarray,
-                own_triangle: np.ndarray, cone: np.ndarray, cone_valid: np.ndarray, bound: np.ndarray,
-                reference: np.ndarray, couple: np.ndarray, record: np.ndarray) -> Arcs:
-    """Test (couple, edge record) rows: the edges whose jump is not 0 and whose front part crosses the cone.
-
-    Parameters
-    ----------
-    position : (Nc, 3)           each couple's receiver; own_triangle : (Nc,) the triangle it lies on.
-    cone : (Nc, V, 3)            inward normals of the planes through the receiver and the light's edges.
-    cone_valid : (Nc, V) bool
-    bound : (Nc, 4, 3)           inward normals of the cone through the light's bounding quad (quick test).
-    reference : (Nc, 3)          direction from the receiver to the reference point R.
-    couple, record : (N,) int64  the rows.
-    """
-    couple, start, end, normal, enter, leave, jump = test_rows(edges, frames, couples, position, own_triangle, cone,
-                                                               cone_valid, bound, reference, couple, record)
-    return Arcs(couple, start, end, normal, enter, leave, jump)
 
 
 def bounding_cone(couples: ReceiverLight, frames: LightFrames) -> np.ndarray:
@@ -527,11 +503,11 @@ def compile_kernels() -> bool:
     """Make pass 2's compiled kernels ready: Numba compiles them on a machine's first render (about 10 s
     here) and writes them to its cache (``__pycache__`` beside the modules, or a per-user folder where that
     is read-only); afterwards this loads them in milliseconds. Returns whether any had to be compiled."""
-    compile_walk()
-    compile_rows()
+    compile_detection()
+    compile_cells()
     compile_arrangement()
-    kernels = (detection_module._walk, detection_module._may_be_silhouettes, arcs_module._rows,
-               arcs_module._arcs_in_cells, arrangement_module._fans, arrangement_module._jumps)
+    kernels = (detection_module._detect, arcs_module._arcs_in_cells, arrangement_module._fans,
+               arrangement_module._jumps)
     return any(kernel.stats.cache_misses for kernel in kernels)
 
 
@@ -546,23 +522,18 @@ def pixel_batch_for(memory_budget_mb: float, threads: int, frames: LightFrames) 
     """Pixels per pass-2 batch: a quarter of the memory budget shared by the threads' batches, each pixel
     costing COUPLE_VERTEX_BYTES per light and vertex of its clipped light (clipping at the horizons adds
     at most a few vertices). suzanne_dense at 512 px with batches of 16384 pixels peaked at 2.7 GB, with
-    4096 at 0.95 GB, as fast."""
+    4096 at 0.95 GB, as fast.
+
+    Raises MemoryError when the budget cannot hold even MIN_PIXEL_BATCH pixels per thread.
+    """
     vertices = int(frames.vertex_count.max()) + 4 if len(frames) else 4
     per_pixel = max(len(frames), 1) * vertices * COUPLE_VERTEX_BYTES
-    return max(MIN_PIXEL_BATCH, int(memory_budget_mb * 2 ** 20 / 4 / max(threads, 1) / per_pixel))
-
-
-def row_batch_for(memory_budget_mb: float, threads: int) -> int:
-    """Rows per arc-test batch that keep every thread's temporaries within a quarter of the budget.
-
-    Raises MemoryError when the budget cannot hold even MIN_ROW_BATCH rows per thread.
-    """
-    rows = int(memory_budget_mb * 2 ** 20 * 0.25 / (ROW_BYTES * max(threads, 1)))
-    if rows < MIN_ROW_BATCH:
-        needed = MIN_ROW_BATCH * ROW_BYTES * max(threads, 1) * 4 / 2 ** 20
+    pixels = int(memory_budget_mb * 2 ** 20 / 4 / max(threads, 1) / per_pixel)
+    if pixels < MIN_PIXEL_BATCH:
+        needed = MIN_PIXEL_BATCH * per_pixel * max(threads, 1) * 4 / 2 ** 20
         raise MemoryError(f"memory budget of {memory_budget_mb:g} MB is too small for the silhouette batches of "
                           f"{max(threads, 1)} threads (at least {needed:.0f} MB); raise it")
-    return min(rows, ROW_BATCH)
+    return pixels
 
 
 # Vertex weights of the probe points (positive: inside the convex region), far from R's.
@@ -611,14 +582,12 @@ def _directions_to_uv(couples: ReceiverLight, frames: LightFrames, couple: np.nd
 
 
 def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, couples: ReceiverLight,
-                      couple_pixel: np.ndarray, row_batch: int = ROW_BATCH
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
+                      couple_pixel: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
     """The visible region of each couple of a batch as signed triangles in its light's plane.
 
     Parameters
     ----------
-    surface : SurfacePoints of the batch; couples, couple_pixel : its lit couples (``couples_for``);
-    row_batch : rows per arc-test batch (``row_batch_for``).
+    surface : SurfacePoints of the batch; couples, couple_pixel : its lit couples (``couples_for``).
 
     Returns
     -------
@@ -629,8 +598,8 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
     stats : dict          edge candidates tested, arcs, reference depth rays, inconsistent couples.
     """
     n_couples = len(couple_pixel)
-    stats = {"edge_tests": 0, "arcs": 0, "depth_rays": 0, "inconsistent_couples": 0, "max_arcs_per_couple": 0,
-             "cells": 0}
+    stats = {"nodes_visited": 0, "edge_tests": 0, "arcs": 0, "depth_rays": 0, "inconsistent_couples": 0,
+             "max_arcs_per_couple": 0, "cells": 0}
     if n_couples == 0:
         stats["arcs_of_couple"] = np.zeros(0, np.int64)
         polygons = (np.zeros(0, np.int64), np.zeros((0, 3, 2)), np.zeros(0, np.int64))
@@ -670,45 +639,27 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
     couple_query[by_query] = np.repeat(np.arange(len(keys)), query_size)
     height = couples.side * couples.local[:, 2]
     np.maximum.at(query_height, couple_query, height)
-    pair_query, pair_record = candidate_edges(edges, frames, group_low, group_high, query_group, query_light,
-                                              query_side, query_height)
-
-    # Sub-groups: SUB_POINTS consecutive couples (Morton order) of a query, each with its own box, so
-    # that a candidate of the group is tested only at the receivers near which it may be a silhouette.
+    # Sub-groups: SUB_POINTS consecutive couples (Morton order) of a query, each with its own box and hull.
     rank_in_query = np.arange(n_couples) - np.repeat(query_first, query_size)
-    unit_count = -(-query_size // SUB_POINTS)
-    unit_first = np.cumsum(unit_count) - unit_count
-    unit_of = np.repeat(unit_first, query_size) + rank_in_query // SUB_POINTS   # per entry of by_query
-    n_units = int(unit_count.sum())
+    query_units = -(-query_size // SUB_POINTS)
+    query_unit = np.cumsum(query_units) - query_units
+    unit_of = np.repeat(query_unit, query_size) + rank_in_query // SUB_POINTS   # per entry of by_query
+    n_units = int(query_units.sum())
     unit_size = np.bincount(unit_of, minlength=n_units)
-    unit_start = np.cumsum(unit_size) - unit_size
+    unit_first = np.cumsum(unit_size) - unit_size
     unit_low = np.full((n_units, 3), np.inf)
     unit_high = np.full((n_units, 3), -np.inf)
     np.minimum.at(unit_low, unit_of, position[by_query])
     np.maximum.at(unit_high, unit_of, position[by_query])
-
-    # Rows (couple, record): the couples of each sub-group where a candidate may be a silhouette, batched.
-    per_pair = query_size[pair_query]
-    arcs = []
-    bounds = np.concatenate([[0], np.cumsum(per_pair)])
-    cuts = np.unique(np.minimum(np.searchsorted(bounds, np.arange(0, bounds[-1] + row_batch, row_batch)),
-                                len(per_pair)))
-    for lo, hi in zip(cuts[:-1], cuts[1:]):  # batches of rows
-        if hi <= lo:
-            continue
-        units = unit_count[pair_query[lo:hi]]
-        pair = np.repeat(np.arange(lo, hi), units)
-        unit = unit_first[pair_query[pair]] + np.arange(len(pair)) - np.repeat(np.cumsum(units) - units, units)
-        near = may_be_silhouette(edges, pair_record[pair], unit_low[unit], unit_high[unit])
-        pair, unit = pair[near], unit[near]
-        size = unit_size[unit]
-        row_unit = np.repeat(unit, size)
-        offset = np.arange(len(row_unit)) - np.repeat(np.cumsum(size) - size, size)
-        couple = by_query[unit_start[row_unit] + offset]
-        stats["edge_tests"] += len(couple)
-        arcs.append(couple_arcs(edges, frames, couples, position, own, cone, cone_valid, bound, reference,
-                                couple, pair_record[np.repeat(pair, size)]))
-    arcs = Arcs.concat(arcs) if arcs else Arcs.empty()
+    unit_height = np.zeros(n_units)
+    np.maximum.at(unit_height, unit_of, height[by_query])
+    unit_query = np.repeat(np.arange(len(keys)), query_units)
+    hulls = hull_table(frames, group_low[query_group], group_high[query_group], query_light, query_side, query_height)
+    unit_hulls = hull_table(frames, unit_low, unit_high, query_light[unit_query], query_side[unit_query], unit_height)
+    found, stats["edge_tests"], stats["nodes_visited"] = detect_arcs(
+        edges, LEAF_EDGES, hulls, query_light, (query_unit, query_units, unit_hulls, unit_first, unit_size), by_query,
+        couples, frames, position, own, cone, cone_valid, bound, reference)
+    arcs = Arcs(*found)
     arcs = arcs.take(np.argsort(arcs.couple, kind="stable"))
     stats["arcs"] = len(arcs.couple)
     arcs_of = np.bincount(arcs.couple, minlength=n_couples)
