@@ -107,3 +107,62 @@ def test_split_survives_vertices_alternating_within_rounding_of_the_line():
     # An ordinary cut still splits.
     inside, inside_count, outside, outside_count = split_convex(square, count, square[..., 1] - 0.5)
     assert inside_count[0] == 4 and outside_count[0] == 7
+
+
+def test_lambert_from_light_coordinates_equals_the_direction_form():
+    """``projected_solid_angle_uv`` (a polygon in its light's (u, v) plane seen from a receiver given in the
+    light's frame) is ``projected_solid_angle`` of the same polygon's directions, padding included."""
+    from lazyvis_addon.core.geometry import projected_solid_angle_uv
+    rng = np.random.default_rng(7)
+    uv = rng.uniform(-1.0, 1.0, (50, 6, 2))
+    uv[:, 4:] = uv[:, 3:4]  # padded quads, any winding
+    local = np.concatenate([rng.uniform(-1.0, 1.0, (50, 2)), rng.uniform(0.2, 2.0, (50, 1))], axis=1)
+    normal = rng.normal(size=(50, 3))
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    directions = np.concatenate([uv - local[:, None, :2], np.broadcast_to(-local[:, None, 2:], (50, 6, 1))], axis=2)
+    np.testing.assert_allclose(projected_solid_angle_uv(uv, local, normal), projected_solid_angle(directions, normal),
+                               rtol=1e-12, atol=1e-15)
+
+
+def test_horizon_clipping_equals_clipping_by_each_line():
+    """``receiver_light`` clips every couple's light to its geometric and shading horizons in one compiled
+    pass: the same region (area, and every vertex on the lines or inside both) as ``clip_convex`` by one
+    line, then the other; receivers behind the light get nothing; a polygon whose vertices straddle a
+    line only within rounding (more than two crossings) is kept whole on the side it leans to."""
+    from lazyvis_addon.core.geometry import light_frames, plane_lines, receiver_light
+    from lazyvis_addon.core.scene import Lights
+    hexagon = np.array([[np.cos(a), np.sin(a), 2.0] for a in np.linspace(0, 2 * np.pi, 7)[:-1]])
+    facing_down = [SQUARE[::-1] + (0, 0, 1.0), hexagon[::-1]]
+    frames = light_frames(Lights.from_polygons(facing_down, [(1.0, 1.0, 1.0)] * 2))
+    rng = np.random.default_rng(3)
+    n = 400
+    position = np.concatenate([rng.uniform(-2, 2, (n, 2)), rng.uniform(-0.5, 1.8, (n, 1))], axis=1)
+    geometric = rng.normal(size=(n, 3))
+    geometric /= np.linalg.norm(geometric, axis=1, keepdims=True)
+    shading = geometric + 0.4 * rng.normal(size=(n, 3))
+    shading /= np.linalg.norm(shading, axis=1, keepdims=True)
+    light = rng.integers(0, 2, n)
+    setup = receiver_light(position, geometric, shading, light, frames)
+    # One line, then the other, by the numpy clip.
+    width = frames.uv.shape[1]
+    uv, count = frames.uv[light].copy(), frames.vertex_count[light].copy()
+    above = np.einsum("nk,nk->n", position - frames.origin[light], frames.normal[light]) > 1e-9
+    count[~above] = 0
+    rel = position - frames.origin[light]
+    for normal in (geometric, shading):
+        line = plane_lines(normal[:, None], rel, light, frames)[:, 0]
+        value = line[:, :1] * uv[..., 0] + line[:, 1:2] * uv[..., 1] + line[:, 2:]
+        uv, count = clip_convex(uv, count, value)
+    expected = np.where(count >= 3, polygon_area_2d(uv), 0.0)
+    got = np.where(setup.count >= 3, polygon_area_2d(setup.uv), 0.0)
+    np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-12)
+    assert (setup.count[~above] == 0).all() and (got > 0).sum() > n // 4 and (expected == 0).sum() > n // 10
+    assert setup.uv.shape[1] <= width + 2
+    # Vertices within rounding of the line, on alternating sides: kept whole on the side they lean to.
+    from lazyvis_addon.core.geometry import _clip_to_horizons
+    flat = np.array([[[0.0, 1e-17], [1.0, -1e-17], [2.0, 1e-17], [3.0, -1e-17], [1.5, 2e-17]]])
+    for lean, kept in ((0.0, 5), (-10.0, 0)):
+        horizons = np.array([[[0.0, 1.0, lean * 1e-18], [0.0, 0.0, 1.0]]])  # y >= 0; always true
+        out, out_count = np.empty((1, 7, 2)), np.empty(1, np.int64)
+        _clip_to_horizons(flat, np.array([5]), np.array([0]), np.array([True]), horizons, out, out_count)
+        assert out_count[0] == kept

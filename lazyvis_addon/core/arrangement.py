@@ -72,23 +72,23 @@ def visible_fans(arcs, light_dirs: np.ndarray, light_count: np.ndarray, referenc
         capacity *= 2
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _dot(a, b):
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _cross_dot(a, b, n):
     """(a x b) . n"""
     return (a[1] * b[2] - a[2] * b[1]) * n[0] + (a[2] * b[0] - a[0] * b[2]) * n[1] + (a[0] * b[1] - a[1] * b[0]) * n[2]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _norm(a):
     return np.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _on_arc(point, start, end, normal, slack):
     """``point`` (on the great circle of the arc start -> end, plane ``normal``) lies on the arc, the arc
     grown at both ends by ``slack`` (radians, about; 0: strictly inside)."""
@@ -99,12 +99,12 @@ def _on_arc(point, start, end, normal, slack):
         (_cross_dot(point, end, normal) > -slack * size * _norm(end))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _straddles(va, vb):
     return (va < 0.0 and vb > 0.0) or (va > 0.0 and vb < 0.0)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _split(seg_start, seg_end, first, n, start, end, normal, skip, splits, va, vb, point):
     """Parameters (written to ``splits``, returned count) where arcs first .. first + n - 1 (not ``skip``)
     cross the segment seg_start -> seg_end, with SPLIT_SLACK. Also leaves each arc's plane's values at
@@ -124,7 +124,7 @@ def _split(seg_start, seg_end, first, n, start, end, normal, skip, splits, va, v
     return count
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _near_depth(seg_start, seg_end, t_mid, own, first, n, start, end, normal, jump, ref, ref_value, depth,
                 va, vb, mid, point):
     """D on the reference side of a piece: D(R) plus the jumps of the arcs (not ``own``) that the arc from
@@ -148,7 +148,7 @@ def _near_depth(seg_start, seg_end, t_mid, own, first, n, start, end, normal, ju
     return d
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _breakpoints(seg_start, seg_end, low, high, skip, first, n, start, end, normal, splits, va, vb, point):
     """The carrier seg_start -> seg_end's part low .. high cut where the arcs (not ``skip``) cross it: the
     sorted parameters low, the crossings strictly inside, high, written to ``splits``; returns their
@@ -165,7 +165,7 @@ def _breakpoints(seg_start, seg_end, low, high, skip, first, n, start, end, norm
     return kept + 2
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _sort(values, n):
     """Sort values[:n] in place (insertion sort: a few dozen splits per carrier)."""
     for i in range(1, n):

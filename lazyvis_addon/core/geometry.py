@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from .scene import Lights
 
@@ -352,14 +353,61 @@ def irradiance_vector(directions: np.ndarray) -> np.ndarray:
     """The vector form factor of each polygon (Arvo 1994), (N, 3): its dot product with a unit normal is
     the polygon's projected solid angle about that normal (up to the sign set by the winding), and its
     direction is the cosine-weighted mean direction of the polygon. Arguments as ``projected_solid_angle``."""
-    unit = directions / np.maximum(np.sqrt(np.einsum("nkd,nkd->nk", directions, directions)), 1e-300)[:, :, None]
-    nxt = np.roll(unit, -1, axis=1)
-    cross = cross3(unit, nxt)
-    sin = np.sqrt(np.einsum("nkd,nkd->nk", cross, cross))
-    cos = np.einsum("nkd,nkd->nk", unit, nxt)
-    angle = np.arctan2(sin, cos)
-    ratio = np.where(sin > 1e-15, angle / np.maximum(sin, 1e-300), 1.0)
-    return 0.5 * np.einsum("nkd,nk->nd", cross, ratio)
+    directions = np.ascontiguousarray(directions, np.float64)
+    out = np.empty((directions.shape[0], 3))
+    _irradiance_vectors(directions, out)
+    return out
+
+
+def projected_solid_angle_uv(uv: np.ndarray, local: np.ndarray, normal_local: np.ndarray) -> np.ndarray:
+    """``projected_solid_angle`` of polygons in their light's plane, (N,): uv (N, K, 2) padded polygons in the
+    light's (u, v) coordinates, local (N, 3) the receiver in the light's frame (u, v, height), normal_local
+    (N, 3) the unit receiver normal in that frame. A vertex seen from the receiver is (u - u_x, v - v_x,
+    -height): no per-vertex change of basis, and no (N, K, 3) directions stored."""
+    out = np.empty(len(uv))
+    _projected_solid_angles_uv(np.ascontiguousarray(uv, np.float64), np.ascontiguousarray(local, np.float64),
+                               np.ascontiguousarray(normal_local, np.float64), out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _projected_solid_angles_uv(uv, local, normal_local, out):
+    directions = np.empty((uv.shape[1], 3))
+    vector = np.empty((1, 3))
+    for n in range(uv.shape[0]):
+        for k in range(uv.shape[1]):
+            directions[k, 0] = uv[n, k, 0] - local[n, 0]
+            directions[k, 1] = uv[n, k, 1] - local[n, 1]
+            directions[k, 2] = -local[n, 2]
+        _irradiance_vectors(directions.reshape((1, uv.shape[1], 3)), vector)
+        out[n] = abs(vector[0, 0] * normal_local[n, 0] + vector[0, 1] * normal_local[n, 1]
+                     + vector[0, 2] * normal_local[n, 2])
+
+
+@njit(cache=True, nogil=True)
+def _irradiance_vectors(directions, out):
+    """Per polygon: 1/2 sum over its edges (u_k, u_k+1) of the unit vectors of u_k x u_k+1 times the angle
+    between them (the padding's repeated vertex adds zero-length edges, which add nothing). Compiled: as
+    numpy passes over (N, K, 3) temporaries it was the largest share of pass 2's integrals."""
+    n_polygons, width = directions.shape[0], directions.shape[1]
+    for n in range(n_polygons):
+        total0, total1, total2 = 0.0, 0.0, 0.0
+        for k in range(width):
+            j = k + 1 if k + 1 < width else 0
+            a0, a1, a2 = directions[n, k, 0], directions[n, k, 1], directions[n, k, 2]
+            b0, b1, b2 = directions[n, j, 0], directions[n, j, 1], directions[n, j, 2]
+            length_a = max(np.sqrt(a0 * a0 + a1 * a1 + a2 * a2), 1e-300)
+            length_b = max(np.sqrt(b0 * b0 + b1 * b1 + b2 * b2), 1e-300)
+            a0, a1, a2 = a0 / length_a, a1 / length_a, a2 / length_a
+            b0, b1, b2 = b0 / length_b, b1 / length_b, b2 / length_b
+            c0, c1, c2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+            sin = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+            cos = a0 * b0 + a1 * b1 + a2 * b2
+            ratio = np.arctan2(sin, cos) / sin if sin > 1e-15 else 1.0
+            total0 += c0 * ratio
+            total1 += c1 * ratio
+            total2 += c2 * ratio
+        out[n, 0], out[n, 1], out[n, 2] = 0.5 * total0, 0.5 * total1, 0.5 * total2
 
 
 # ------------------------------------------------------------------------------------------------------
@@ -393,14 +441,26 @@ class ReceiverLight:
     def directions(self, frames: LightFrames, uv: np.ndarray | None = None, index: np.ndarray | None = None
                    ) -> np.ndarray:
         """World-space vectors from the receiver to points (N, K, 2) of the light plane -> (N, K, 3)."""
-        uv = self.uv if uv is None else uv
-        rows = slice(None) if index is None else index
-        light = self.light[rows]
-        local = self.local[rows]
-        du = uv[..., 0] - local[:, None, 0]
-        dv = uv[..., 1] - local[:, None, 1]
-        return (du[..., None] * frames.tangent[light][:, None] + dv[..., None] * frames.bitangent[light][:, None]
-                - local[:, None, 2:3] * frames.normal[light][:, None])
+        uv = np.ascontiguousarray(self.uv if uv is None else uv, np.float64)
+        rows = np.arange(len(self.light)) if index is None else np.arange(len(self.light))[index]
+        out = np.empty(uv.shape[:2] + (3,))
+        _directions(uv, rows, np.ascontiguousarray(self.light, np.int64), np.ascontiguousarray(self.local, np.float64),
+                    frames.tangent, frames.bitangent, frames.normal, out)
+        return out
+
+
+@njit(cache=True, nogil=True)
+def _directions(uv, rows, light, local, tangent, bitangent, normal, out):
+    """out[n, k] = (u - u_x) t + (v - v_x) b - h n for point k of row n (couple rows[n]): ``ReceiverLight.directions``
+    without its (N, K, 3) temporaries."""
+    for n in range(uv.shape[0]):
+        c = rows[n]
+        l = light[c]
+        u0, v0, h = local[c, 0], local[c, 1], local[c, 2]
+        for k in range(uv.shape[1]):
+            du, dv = uv[n, k, 0] - u0, uv[n, k, 1] - v0
+            for d in range(3):
+                out[n, k, d] = du * tangent[l, d] + dv * bitangent[l, d] - h * normal[l, d]
 
 
 def receiver_light(position: np.ndarray, geometric_normal: np.ndarray, shading_normal: np.ndarray,
@@ -413,18 +473,81 @@ def receiver_light(position: np.ndarray, geometric_normal: np.ndarray, shading_n
     lit = side * height > PLANE_EPS * scale
     # Only as wide as the widest light involved: frames pad every light to the largest polygon (a disk).
     width = max(int(frames.vertex_count[light].max()), 3) if len(light) else 3
-    uv = frames.uv[light, :width].copy()
-    count = np.where(lit, frames.vertex_count[light], 0)
-    for normal in (geometric_normal, shading_normal):  # the two horizons
-        line = plane_lines(normal[:, None, :], rel, light, frames)[:, 0]
-        value = line[:, 0, None] * uv[..., 0] + line[:, 1, None] * uv[..., 1] + line[:, 2, None]
-        # Only lights the horizon cuts are clipped (padding repeats a real vertex, so it adds no row).
-        cut = np.flatnonzero((value < 0).any(axis=1) & (count > 0))
-        if len(cut):
-            clipped, count[cut] = clip_convex(uv[cut], count[cut], value[cut])
-            uv = np.concatenate([uv, np.repeat(uv[:, -1:], clipped.shape[1] - uv.shape[1], axis=1)], axis=1)
-            uv[cut] = clipped
-            uv = trim(uv, count)
+    horizons = plane_lines(np.stack([geometric_normal, shading_normal], axis=1), rel, light, frames)  # (N, 2, 3)
+    uv = np.empty((len(light), width + 2, 2))
+    count = np.empty(len(light), np.int64)
+    _clip_to_horizons(np.ascontiguousarray(frames.uv[:, :width], np.float64),
+                      np.ascontiguousarray(frames.vertex_count, np.int64), np.ascontiguousarray(light, np.int64), lit,
+                      np.ascontiguousarray(horizons, np.float64), uv, count)
+    uv = trim(uv, count)
     local = np.stack([np.einsum("nk,nk->n", rel, frames.tangent[light]),
                       np.einsum("nk,nk->n", rel, frames.bitangent[light]), height], axis=1)
     return ReceiverLight(light, uv, count, side, local, rel)
+
+
+@njit(cache=True, nogil=True)
+def _clip_to_horizons(light_uv, vertex_count, light, lit, horizons, out_uv, out_count):
+    """Each couple's light polygon (``light_uv`` (L, W, 2), counter-clockwise) clipped to where both its
+    horizon lines ``horizons`` (N, 2, 3) (a u + b v + c >= 0) hold; out_uv (N, W + 2, 2) padded by repeating
+    the last vertex, out_count (N,) (0: nothing, or less than a triangle, is left; or not ``lit``).
+
+    A convex polygon crosses a line at most twice. Nearly collinear vertices within rounding of the line
+    can alternate sides and cross it more often (seen on the chapel's slats at 64 samples per pixel): such
+    a polygon touches the line only within rounding, so it is kept whole on the side where its vertices
+    lean. A vertex on the line is inside."""
+    capacity = out_uv.shape[1]
+    polygon = np.empty((capacity, 2))
+    clipped = np.empty((capacity, 2))
+    side = np.empty(capacity)
+    for n in range(len(light)):
+        count = vertex_count[light[n]] if lit[n] else 0
+        for k in range(count):
+            polygon[k, 0], polygon[k, 1] = light_uv[light[n], k, 0], light_uv[light[n], k, 1]
+        for h in range(2):
+            if count == 0:
+                break
+            a, b, c = horizons[n, h, 0], horizons[n, h, 1], horizons[n, h, 2]
+            below, total, changes = False, 0.0, 0
+            for k in range(count):
+                side[k] = a * polygon[k, 0] + b * polygon[k, 1] + c
+                below |= side[k] < 0.0
+                total += side[k]
+            if not below:
+                continue
+            for k in range(count):
+                changes += (side[k] >= 0.0) != (side[(k + 1) % count] >= 0.0)
+            if changes > 2:  # tangled within rounding: whole on the side it leans to
+                if total < 0.0:
+                    count = 0
+                continue
+            kept = 0
+            for k in range(count):
+                j = (k + 1) % count
+                if side[k] >= 0.0:
+                    clipped[kept, 0], clipped[kept, 1] = polygon[k, 0], polygon[k, 1]
+                    kept += 1
+                if (side[k] >= 0.0) != (side[j] >= 0.0):
+                    t = side[k] / (side[k] - side[j])
+                    clipped[kept, 0] = polygon[k, 0] + t * (polygon[j, 0] - polygon[k, 0])
+                    clipped[kept, 1] = polygon[k, 1] + t * (polygon[j, 1] - polygon[k, 1])
+                    kept += 1
+            count = kept if kept >= 3 else 0
+            for k in range(count):
+                polygon[k, 0], polygon[k, 1] = clipped[k, 0], clipped[k, 1]
+        out_count[n] = count
+        for k in range(capacity):
+            last = min(k, max(count - 1, 0))
+            out_uv[n, k, 0] = polygon[last, 0] if count > 0 else 0.0
+            out_uv[n, k, 1] = polygon[last, 1] if count > 0 else 0.0
+
+
+def compile_geometry() -> tuple:
+    """Compile the geometry kernels (or load them from Numba's cache) on one-polygon inputs; returns them."""
+    square = np.zeros((1, 4, 3))
+    _irradiance_vectors(square, np.empty((1, 3)))
+    _projected_solid_angles_uv(np.zeros((1, 4, 2)), np.zeros((1, 3)), np.zeros((1, 3)), np.empty(1))
+    _directions(np.zeros((1, 4, 2)), np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros((1, 3)), np.zeros((1, 3)),
+                np.zeros((1, 3)), np.zeros((1, 3)), np.empty((1, 4, 3)))
+    _clip_to_horizons(np.zeros((1, 4, 2)), np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros(1, np.bool_),
+                      np.zeros((1, 2, 3)), np.empty((1, 6, 2)), np.empty(1, np.int64))
+    return _irradiance_vectors, _projected_solid_angles_uv, _directions, _clip_to_horizons

@@ -20,7 +20,7 @@ from .blocker_map import BlockerMap, first_blocker
 from .blockers import BlockerPolygons, silhouette_planes
 from .bsdf import SurfaceBsdf
 from .geometry import (PLANE_EPS, LightFrames, ReceiverLight, blocker_in_front_of_light, clip_convex, cone_planes,
-                       plane_lines, polygon_area_2d, projected_solid_angle, receiver_light, split_convex, trim)
+                       plane_lines, polygon_area_2d, projected_solid_angle_uv, receiver_light, split_convex, trim)
 from .ggx import ROUGHNESS_SQ_THRESHOLD, alpha_from_roughness, ggx_reflection_pdf, sample_ggx_reflection
 from .ltc import ltc_shape_integral
 from .phong import phong_exponent_from_roughness, phong_polygon_integral
@@ -376,15 +376,12 @@ def analytic(pieces: VisiblePieces, surface: SurfacePoints, frames: LightFrames,
     couples = pieces.couples
     if len(pieces.count) == 0:
         return np.zeros(len(pieces.couple_pixel))
-    local = couples.local[pieces.couple]
-    directions = np.concatenate([pieces.uv - local[:, None, :2],
-                                 np.broadcast_to(-local[:, None, 2:3], pieces.uv.shape[:2] + (1,))], axis=2)
     light = couples.light
     normal = surface.shading_normal[pieces.couple_pixel]
     normal_local = np.stack([np.einsum("nk,nk->n", normal, frames.tangent[light]),
                              np.einsum("nk,nk->n", normal, frames.bitangent[light]),
                              np.einsum("nk,nk->n", normal, frames.normal[light])], axis=1)
-    per_piece = projected_solid_angle(directions, normal_local[pieces.couple])
+    per_piece = projected_solid_angle_uv(pieces.uv, couples.local[pieces.couple], normal_local[pieces.couple])
     if pieces.sign is None:
         return np.bincount(pieces.couple, weights=per_piece, minlength=len(pieces.couple_pixel))
     # Signed terms: rounding can leave a fully hidden light a hair below zero (``clamp`` False: a part of

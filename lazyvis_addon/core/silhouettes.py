@@ -37,13 +37,14 @@ import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from . import arcs as arcs_module, arrangement as arrangement_module, detection as detection_module
 from .arcs import arcs_in_cells, compile_cells
 from .arrangement import compile_arrangement, jumps_between, visible_fans
 from .detection import HULL_WIDTH, compile_detection, detect_arcs
 from .blockers import _rank_within, _unique_points
-from .geometry import PLANE_EPS, LightFrames, ReceiverLight, clip_convex, cross3, trim
+from .geometry import PLANE_EPS, LightFrames, ReceiverLight, clip_convex, compile_geometry, cross3, trim
 from .illumination import _pad_to
 
 # Edge records per leaf of the edge tree.
@@ -437,18 +438,37 @@ def bounding_cone(couples: ReceiverLight, frames: LightFrames) -> np.ndarray:
 def cone_of_light(directions: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Inward unit normals (N, V, 3) of the planes through the origin and each edge of convex polygons given
     by directions (N, V, 3) (padded by repeating the last vertex), and their validity (N, V)."""
-    following = np.roll(directions, -1, axis=1)
-    last = np.maximum(count - 1, 0)
-    rows = np.arange(len(count))
-    following[rows, last] = directions[:, 0]
-    planes = cross3(directions, following)
-    centre = directions.sum(axis=1)
-    flip = np.einsum("nvk,nk->nv", planes, centre) < 0
-    planes[flip] *= -1.0
-    planes /= np.maximum(np.linalg.norm(planes, axis=2), 1e-300)[:, :, None]
-    valid = (np.arange(directions.shape[1])[None, :] < count[:, None]) & \
-        (np.einsum("nvk,nvk->nv", planes, planes) > 0)
+    directions = np.ascontiguousarray(directions, np.float64)
+    planes = np.empty(directions.shape)
+    valid = np.empty(directions.shape[:2], np.bool_)
+    _cone_planes(directions, np.ascontiguousarray(count, np.int64), planes, valid)
     return planes, valid
+
+
+@njit(cache=True, nogil=True)
+def _cone_planes(directions, count, planes, valid):
+    """Per polygon: the plane through vertex k and its successor (the last real vertex closes onto vertex
+    0), turned to face the polygon's centre, normalised; valid where k is a real vertex and the plane is
+    not degenerate."""
+    n_polygons, width = directions.shape[0], directions.shape[1]
+    for n in range(n_polygons):
+        last = max(count[n] - 1, 0)
+        c0, c1, c2 = 0.0, 0.0, 0.0
+        for k in range(width):
+            c0 += directions[n, k, 0]
+            c1 += directions[n, k, 1]
+            c2 += directions[n, k, 2]
+        for k in range(width):
+            j = 0 if k == last or k + 1 == width else k + 1
+            a0, a1, a2 = directions[n, k, 0], directions[n, k, 1], directions[n, k, 2]
+            b0, b1, b2 = directions[n, j, 0], directions[n, j, 1], directions[n, j, 2]
+            p0, p1, p2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+            if p0 * c0 + p1 * c1 + p2 * c2 < 0:
+                p0, p1, p2 = -p0, -p1, -p2
+            length = max(np.sqrt(p0 * p0 + p1 * p1 + p2 * p2), 1e-300)
+            p0, p1, p2 = p0 / length, p1 / length, p2 / length
+            planes[n, k, 0], planes[n, k, 1], planes[n, k, 2] = p0, p1, p2
+            valid[n, k] = k < count[n] and p0 * p0 + p1 * p1 + p2 * p2 > 0
 
 
 # ------------------------------------------------------------------------------------------------------
@@ -500,14 +520,16 @@ _REFERENCE_WEIGHTS = 1.0 + np.modf(np.arange(1, 257) * 0.6180339887498949 + 0.12
 
 
 def compile_kernels() -> bool:
-    """Make pass 2's compiled kernels ready: Numba compiles them on a machine's first render (about 10 s
+    """Make pass 2's compiled kernels ready: Numba compiles them on a machine's first render (about 20 s
     here) and writes them to its cache (``__pycache__`` beside the modules, or a per-user folder where that
-    is read-only); afterwards this loads them in milliseconds. Returns whether any had to be compiled."""
+    is read-only); afterwards this loads them in a fraction of a second. Returns whether any had to be
+    compiled."""
     compile_detection()
     compile_cells()
     compile_arrangement()
+    _cone_planes(np.zeros((1, 3, 3)), np.zeros(1, np.int64), np.empty((1, 3, 3)), np.empty((1, 3), np.bool_))
     kernels = (detection_module._detect, arcs_module._arcs_in_cells, arrangement_module._fans,
-               arrangement_module._jumps)
+               arrangement_module._jumps, _cone_planes, *compile_geometry())
     return any(kernel.stats.cache_misses for kernel in kernels)
 
 
