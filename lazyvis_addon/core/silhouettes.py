@@ -42,7 +42,9 @@ from numba import njit
 from . import arcs as arcs_module, arrangement as arrangement_module, detection as detection_module
 from .arcs import arcs_in_cells, compile_cells
 from .arrangement import compile_arrangement, jumps_between, visible_fans
-from .detection import HULL_WIDTH, compile_detection, detect_arcs
+from .detection import (HULL_BASE, HULL_BOX_HIGH, HULL_BOX_LOW, HULL_EPS, HULL_HEIGHT, HULL_HIGH, HULL_LOW,
+                        HULL_SIDE_NORMAL, HULL_SIDE_OFFSET, HULL_SIDE_VALID, HULL_TOWARD, HULL_WIDTH, compile_detection,
+                        detect_arcs)
 from .blockers import _rank_within, _unique_points
 from .geometry import PLANE_EPS, LightFrames, ReceiverLight, clip_convex, compile_geometry, cross3, trim
 from .illumination import _pad_to
@@ -330,56 +332,73 @@ def hull_table(frames: LightFrames, box_low: np.ndarray, box_high: np.ndarray, l
 
     An edge that crosses the light from a point of a box lies in the bounding box of the box and the
     light, inside the hull's four side planes, and has a point in front of the light's plane and below
-    the receiver: what the tests keep.
+    the receiver: what the tests keep. Each side plane contains one edge of the light's (u, v) bounding
+    rectangle and touches the box, with box and light on its negative side (n . y <= offset), so anything
+    beyond it meets no segment from the box to the light.
     """
-    light_points = frames.vertices[light]
-    real = np.arange(light_points.shape[1])[None, :] < frames.vertex_count[light][:, None]
-    low = np.minimum(box_low, np.where(real[..., None], light_points, np.inf).min(axis=1))
-    high = np.maximum(box_high, np.where(real[..., None], light_points, -np.inf).max(axis=1))
-    toward = side[:, None] * frames.normal[light]               # (N, 3) away from the light
-    base = np.einsum("qk,qk->q", toward, frames.origin[light])
-    eps = PLANE_EPS * (np.abs(high).max(axis=1) + np.abs(low).max(axis=1))
-    side_normal, side_offset, side_valid = _side_planes(frames, light, side, box_low, box_high)
-    table = np.concatenate([low, high, toward, base[:, None], eps[:, None], height[:, None],
-                            side_normal.reshape(-1, 12), side_offset, side_valid.astype(np.float64), box_low, box_high],
-                           axis=1)
-    assert table.shape[1] == HULL_WIDTH
+    table = np.empty((len(light), HULL_WIDTH))
+    _hull_rows(np.ascontiguousarray(box_low, np.float64), np.ascontiguousarray(box_high, np.float64),
+               np.ascontiguousarray(light, np.int64), np.ascontiguousarray(side, np.float64),
+               np.ascontiguousarray(height, np.float64), frames.origin, frames.tangent, frames.bitangent, frames.normal,
+               np.ascontiguousarray(frames.uv, np.float64), np.ascontiguousarray(frames.vertices, np.float64),
+               np.ascontiguousarray(frames.vertex_count, np.int64), table)
     return table
 
 
-def _side_planes(frames: LightFrames, light: np.ndarray, side: np.ndarray, box_low: np.ndarray,
-                 box_high: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Side planes of the convex hull of a receiver box and its light's bounding rectangle, (Q, 4, 3)
-    normals, (Q, 4) offsets and validity: each contains one edge of the rectangle and touches the box,
-    with box and light on its negative side (n . y <= offset), so anything beyond it meets no segment
-    from the box to the light."""
-    uv = frames.uv[light]
-    real = np.arange(uv.shape[1])[None, :] < frames.vertex_count[light][:, None]
-    u_low = np.where(real, uv[..., 0], np.inf).min(axis=1)
-    u_high = np.where(real, uv[..., 0], -np.inf).max(axis=1)
-    v_low = np.where(real, uv[..., 1], np.inf).min(axis=1)
-    v_high = np.where(real, uv[..., 1], -np.inf).max(axis=1)
-    origin, tangent, bitangent = frames.origin[light], frames.tangent[light], frames.bitangent[light]
-    up = side[:, None] * frames.normal[light]
-    # Each rectangle edge: a point on it and its outward in-plane normal.
-    points = [origin + u_low[:, None] * tangent, origin + u_high[:, None] * tangent,
-              origin + v_low[:, None] * bitangent, origin + v_high[:, None] * bitangent]
-    outward = [-tangent, tangent, -bitangent, bitangent]
-    corners = np.stack([np.where(np.array([(i >> axis) & 1 for axis in range(3)], bool)[None, :], box_high, box_low)
-                        for i in range(8)], axis=1)                          # (Q, 8, 3)
-    normals, offsets, valids = [], [], []
-    for point, out in zip(points, outward):  # four rectangle edges
-        rel = corners - point[:, None]
-        alpha = np.einsum("qck,qk->qc", rel, out)
-        beta = np.einsum("qck,qk->qc", rel, up)
-        valid = (beta > 0).all(axis=1)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            tilt = np.where(valid, (-alpha / np.where(beta > 0, beta, 1.0)).min(axis=1), 0.0)
-        normal = out + tilt[:, None] * up
-        normals.append(normal)
-        offsets.append(np.einsum("qk,qk->q", normal, point))
-        valids.append(valid)
-    return np.stack(normals, axis=1), np.stack(offsets, axis=1), np.stack(valids, axis=1)
+@njit(cache=True, nogil=True)
+def _hull_rows(box_low, box_high, light, side, height, origin, tangent, bitangent, normal, light_uv, vertices,
+               vertex_count, table):
+    corners = np.empty((8, 3))
+    for n in range(len(light)):
+        l = light[n]
+        row = table[n]
+        for k in range(3):
+            low, high = box_low[n, k], box_high[n, k]
+            for v in range(vertex_count[l]):
+                low, high = min(low, vertices[l, v, k]), max(high, vertices[l, v, k])
+            row[HULL_LOW + k], row[HULL_HIGH + k] = low, high
+            row[HULL_TOWARD + k] = side[n] * normal[l, k]
+            row[HULL_BOX_LOW + k], row[HULL_BOX_HIGH + k] = box_low[n, k], box_high[n, k]
+        row[HULL_BASE] = row[HULL_TOWARD] * origin[l, 0] + row[HULL_TOWARD + 1] * origin[l, 1] + \
+            row[HULL_TOWARD + 2] * origin[l, 2]
+        largest_high, largest_low = 0.0, 0.0
+        for k in range(3):
+            largest_high, largest_low = max(largest_high, abs(row[HULL_HIGH + k])), max(largest_low, abs(row[HULL_LOW + k]))
+        row[HULL_EPS] = PLANE_EPS * (largest_high + largest_low)
+        row[HULL_HEIGHT] = height[n]
+        u0, u1, v0, v1 = np.inf, -np.inf, np.inf, -np.inf
+        for v in range(vertex_count[l]):
+            u0, u1 = min(u0, light_uv[l, v, 0]), max(u1, light_uv[l, v, 0])
+            v0, v1 = min(v0, light_uv[l, v, 1]), max(v1, light_uv[l, v, 1])
+        for i in range(8):
+            for k in range(3):
+                corners[i, k] = box_high[n, k] if (i >> k) & 1 else box_low[n, k]
+        for s in range(4):  # the rectangle's edges u = u0, u = u1, v = v0, v = v1: a point and the outward normal
+            axis_value = (u0, u1, v0, v1)[s]
+            sign = -1.0 if s % 2 == 0 else 1.0
+            valid = True
+            tilt = np.inf
+            for i in range(8):
+                alpha, beta = 0.0, 0.0
+                for k in range(3):
+                    point = origin[l, k] + axis_value * (tangent[l, k] if s < 2 else bitangent[l, k])
+                    out = sign * (tangent[l, k] if s < 2 else bitangent[l, k])
+                    alpha += (corners[i, k] - point) * out
+                    beta += (corners[i, k] - point) * side[n] * normal[l, k]
+                if not beta > 0:
+                    valid = False
+                    break
+                tilt = min(tilt, -alpha / beta)
+            if not valid:
+                tilt = 0.0
+            offset = 0.0
+            for k in range(3):
+                point = origin[l, k] + axis_value * (tangent[l, k] if s < 2 else bitangent[l, k])
+                plane = sign * (tangent[l, k] if s < 2 else bitangent[l, k]) + tilt * side[n] * normal[l, k]
+                row[HULL_SIDE_NORMAL + 3 * s + k] = plane
+                offset += plane * point
+            row[HULL_SIDE_OFFSET + s] = offset
+            row[HULL_SIDE_VALID + s] = 1.0 if valid else 0.0
 
 
 # ------------------------------------------------------------------------------------------------------
@@ -425,14 +444,29 @@ class Arcs:
 def bounding_cone(couples: ReceiverLight, frames: LightFrames) -> np.ndarray:
     """Inward normals (Nc, 4, 3) of the cone from each receiver through the (u, v) bounding box of its
     clipped light: a cone holding the light's, for a quick test."""
-    real = np.arange(couples.uv.shape[1])[None, :] < couples.count[:, None]
-    u, v = couples.uv[..., 0], couples.uv[..., 1]
-    u0, u1 = np.where(real, u, np.inf).min(axis=1), np.where(real, u, -np.inf).max(axis=1)
-    v0, v1 = np.where(real, v, np.inf).min(axis=1), np.where(real, v, -np.inf).max(axis=1)
-    corners = np.stack([np.stack([u0, v0], 1), np.stack([u1, v0], 1), np.stack([u1, v1], 1), np.stack([u0, v1], 1)],
-                       axis=1)
-    directions = couples.directions(frames, corners, np.arange(len(couples.count)))
-    return cone_of_light(directions, np.full(len(couples.count), 4))[0]
+    out = np.empty((len(couples.count), 4, 3))
+    _bounding_cones(np.ascontiguousarray(couples.uv, np.float64), np.ascontiguousarray(couples.count, np.int64),
+                    np.ascontiguousarray(couples.light, np.int64), np.ascontiguousarray(couples.local, np.float64),
+                    frames.tangent, frames.bitangent, frames.normal, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _bounding_cones(uv, count, light, local, tangent, bitangent, normal, out):
+    corners = np.empty((1, 4, 3))
+    valid = np.empty((1, 4), np.bool_)
+    four = np.full(1, 4, np.int64)
+    for n in range(len(count)):
+        u0, u1, v0, v1 = np.inf, -np.inf, np.inf, -np.inf
+        for k in range(count[n]):
+            u0, u1 = min(u0, uv[n, k, 0]), max(u1, uv[n, k, 0])
+            v0, v1 = min(v0, uv[n, k, 1]), max(v1, uv[n, k, 1])
+        l = light[n]
+        for corner, (cu, cv) in enumerate(((u0, v0), (u1, v0), (u1, v1), (u0, v1))):
+            du, dv = cu - local[n, 0], cv - local[n, 1]
+            for d in range(3):
+                corners[0, corner, d] = du * tangent[l, d] + dv * bitangent[l, d] - local[n, 2] * normal[l, d]
+        _cone_planes(corners, four, out[n:n + 1], valid)
 
 
 def cone_of_light(directions: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -528,8 +562,15 @@ def compile_kernels() -> bool:
     compile_cells()
     compile_arrangement()
     _cone_planes(np.zeros((1, 3, 3)), np.zeros(1, np.int64), np.empty((1, 3, 3)), np.empty((1, 3), np.bool_))
+    _bounding_cones(np.zeros((1, 3, 2)), np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros((1, 3)), np.zeros((1, 3)),
+                    np.zeros((1, 3)), np.zeros((1, 3)), np.empty((1, 4, 3)))
+    _reference_points(np.zeros((1, 3, 2)), np.zeros(1, np.int64), _REFERENCE_WEIGHTS, np.empty((1, 2)))
+    one, three = np.zeros(1), np.zeros((1, 3))
+    _hull_rows(three, three, np.zeros(1, np.int64), one, one, three, three, three, three, np.zeros((1, 3, 2)),
+               np.zeros((1, 3, 3)), np.zeros(1, np.int64), np.empty((1, HULL_WIDTH)))
     kernels = (detection_module._detect, arcs_module._arcs_in_cells, arrangement_module._fans,
-               arrangement_module._jumps, _cone_planes, *compile_geometry())
+               arrangement_module._jumps, _cone_planes, _bounding_cones, _reference_points, _hull_rows,
+               *compile_geometry())
     return any(kernel.stats.cache_misses for kernel in kernels)
 
 
@@ -582,10 +623,24 @@ def _most_common(values: np.ndarray) -> np.ndarray:
 
 
 def reference_points(uv: np.ndarray, count: np.ndarray) -> np.ndarray:
-    """A generic interior point R of each convex polygon (N, V, 2) with ``count`` (N,) vertices, (N, 2)."""
-    width = uv.shape[1]
-    weight = np.where(np.arange(width)[None, :] < count[:, None], _REFERENCE_WEIGHTS[:width][None, :], 0.0)
-    return np.einsum("nv,nvk->nk", weight, uv) / np.maximum(weight.sum(axis=1), 1e-300)[:, None]
+    """A generic interior point R of each convex polygon (N, V, 2) with ``count`` (N,) vertices, (N, 2): its
+    vertices' mean under irregular positive weights (``_REFERENCE_WEIGHTS``)."""
+    out = np.empty((len(count), 2))
+    _reference_points(np.ascontiguousarray(uv, np.float64), np.ascontiguousarray(count, np.int64),
+                      _REFERENCE_WEIGHTS, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _reference_points(uv, count, weights, out):
+    for n in range(len(count)):
+        total, u, v = 0.0, 0.0, 0.0
+        for k in range(count[n]):
+            total += weights[k]
+            u += weights[k] * uv[n, k, 0]
+            v += weights[k] * uv[n, k, 1]
+        total = max(total, 1e-300)
+        out[n, 0], out[n, 1] = u / total, v / total
 
 
 def _directions_to_uv(couples: ReceiverLight, frames: LightFrames, couple: np.ndarray, direction: np.ndarray
