@@ -120,8 +120,9 @@ def test_lambert_from_light_coordinates_equals_the_direction_form():
     normal = rng.normal(size=(50, 3))
     normal /= np.linalg.norm(normal, axis=1, keepdims=True)
     directions = np.concatenate([uv - local[:, None, :2], np.broadcast_to(-local[:, None, 2:], (50, 6, 1))], axis=2)
-    np.testing.assert_allclose(projected_solid_angle_uv(uv, local, normal), projected_solid_angle(directions, normal),
-                               rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(projected_solid_angle_uv(uv, np.full(50, 4), local, normal),
+                               projected_solid_angle(directions, normal), rtol=1e-12, atol=1e-15)
+    assert (projected_solid_angle_uv(uv, np.full(50, 2), local, normal) == 0).all()  # no polygon
 
 
 def test_horizon_clipping_equals_clipping_by_each_line():

@@ -359,27 +359,34 @@ def irradiance_vector(directions: np.ndarray) -> np.ndarray:
     return out
 
 
-def projected_solid_angle_uv(uv: np.ndarray, local: np.ndarray, normal_local: np.ndarray) -> np.ndarray:
+def projected_solid_angle_uv(uv: np.ndarray, count: np.ndarray, local: np.ndarray, normal_local: np.ndarray
+                             ) -> np.ndarray:
     """``projected_solid_angle`` of polygons in their light's plane, (N,): uv (N, K, 2) padded polygons in the
-    light's (u, v) coordinates, local (N, 3) the receiver in the light's frame (u, v, height), normal_local
-    (N, 3) the unit receiver normal in that frame. A vertex seen from the receiver is (u - u_x, v - v_x,
-    -height): no per-vertex change of basis, and no (N, K, 3) directions stored."""
+    light's (u, v) coordinates with ``count`` (N,) vertices, local (N, 3) the receiver in the light's frame
+    (u, v, height), normal_local (N, 3) the unit receiver normal in that frame. A vertex seen from the
+    receiver is (u - u_x, v - v_x, -height): no per-vertex change of basis, and no (N, K, 3) directions
+    stored; only the real vertices are visited (the padding's zero-length edges add nothing)."""
     out = np.empty(len(uv))
-    _projected_solid_angles_uv(np.ascontiguousarray(uv, np.float64), np.ascontiguousarray(local, np.float64),
-                               np.ascontiguousarray(normal_local, np.float64), out)
+    _projected_solid_angles_uv(np.ascontiguousarray(uv, np.float64), np.ascontiguousarray(count, np.int64),
+                               np.ascontiguousarray(local, np.float64), np.ascontiguousarray(normal_local, np.float64),
+                               out)
     return out
 
 
 @njit(cache=True, nogil=True)
-def _projected_solid_angles_uv(uv, local, normal_local, out):
-    directions = np.empty((uv.shape[1], 3))
+def _projected_solid_angles_uv(uv, count, local, normal_local, out):
+    directions = np.empty((1, uv.shape[1], 3))
     vector = np.empty((1, 3))
     for n in range(uv.shape[0]):
-        for k in range(uv.shape[1]):
-            directions[k, 0] = uv[n, k, 0] - local[n, 0]
-            directions[k, 1] = uv[n, k, 1] - local[n, 1]
-            directions[k, 2] = -local[n, 2]
-        _irradiance_vectors(directions.reshape((1, uv.shape[1], 3)), vector)
+        k_count = min(count[n], uv.shape[1])
+        if k_count < 3:
+            out[n] = 0.0
+            continue
+        for k in range(k_count):
+            directions[0, k, 0] = uv[n, k, 0] - local[n, 0]
+            directions[0, k, 1] = uv[n, k, 1] - local[n, 1]
+            directions[0, k, 2] = -local[n, 2]
+        _irradiance_vectors(directions[:, :k_count], vector)
         out[n] = abs(vector[0, 0] * normal_local[n, 0] + vector[0, 1] * normal_local[n, 1]
                      + vector[0, 2] * normal_local[n, 2])
 
@@ -545,7 +552,7 @@ def compile_geometry() -> tuple:
     """Compile the geometry kernels (or load them from Numba's cache) on one-polygon inputs; returns them."""
     square = np.zeros((1, 4, 3))
     _irradiance_vectors(square, np.empty((1, 3)))
-    _projected_solid_angles_uv(np.zeros((1, 4, 2)), np.zeros((1, 3)), np.zeros((1, 3)), np.empty(1))
+    _projected_solid_angles_uv(np.zeros((1, 4, 2)), np.zeros(1, np.int64), np.zeros((1, 3)), np.zeros((1, 3)), np.empty(1))
     _directions(np.zeros((1, 4, 2)), np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros((1, 3)), np.zeros((1, 3)),
                 np.zeros((1, 3)), np.zeros((1, 3)), np.empty((1, 4, 3)))
     _clip_to_horizons(np.zeros((1, 4, 2)), np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros(1, np.bool_),

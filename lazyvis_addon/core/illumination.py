@@ -381,7 +381,8 @@ def analytic(pieces: VisiblePieces, surface: SurfacePoints, frames: LightFrames,
     normal_local = np.stack([np.einsum("nk,nk->n", normal, frames.tangent[light]),
                              np.einsum("nk,nk->n", normal, frames.bitangent[light]),
                              np.einsum("nk,nk->n", normal, frames.normal[light])], axis=1)
-    per_piece = projected_solid_angle_uv(pieces.uv, couples.local[pieces.couple], normal_local[pieces.couple])
+    per_piece = projected_solid_angle_uv(pieces.uv, pieces.count, couples.local[pieces.couple],
+                                         normal_local[pieces.couple])
     if pieces.sign is None:
         return np.bincount(pieces.couple, weights=per_piece, minlength=len(pieces.couple_pixel))
     # Signed terms: rounding can leave a fully hidden light a hair below zero (``clamp`` False: a part of
