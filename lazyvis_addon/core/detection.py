@@ -70,6 +70,7 @@ def detect_arcs(edges, leaf_size: int, hulls: np.ndarray, query_light: np.ndarra
 
     query_unit, query_units, unit_hulls, unit_first, unit_size = units
     arrays = (f64(edges.node_low), f64(edges.node_high), f64(edges.node_axis), f64(edges.node_spread),
+              np.ascontiguousarray(edges.node_lights, np.uint64), np.ascontiguousarray(edges.lights_seen, np.uint64),
               f64(edges.low), f64(edges.high), i64(edges.light), f64(edges.start), f64(edges.end), f64(edges.third),
               i64(edges.triangle), f64(edges.face_normal), f64(edges.face_offset), f64(edges.face_size),
               f64(hulls), i64(query_light), i64(query_unit), i64(query_units), f64(unit_hulls), i64(unit_first),
@@ -171,7 +172,7 @@ def _may_be_silhouette(start, face_normal, cut, box_low, box_high):
 
 
 @njit(cache=True, nogil=True)
-def _detect(node_low, node_high, node_axis, node_spread, record_low, record_high, record_light, edge_start, edge_end,
+def _detect(node_low, node_high, node_axis, node_spread, node_lights, lights_seen, record_low, record_high, record_light, edge_start, edge_end,
             third, triangle, face_normal, face_offset, face_size, hulls, query_light, query_unit, query_units,
             unit_hulls, unit_first, unit_size, member, couple_rows, cone, cone_valid, n_leaves, leaf_size, q_start,
             capacity):
@@ -191,6 +192,8 @@ def _detect(node_low, node_high, node_axis, node_spread, record_low, record_high
     for q in range(q_start, len(hulls)):
         m_before, tests_before, visits_before = m, tests, visits
         hull = hulls[q]
+        # The records that may be a silhouette from some point of this light (all, beyond the 64th).
+        bit = np.uint64(1) << np.uint64(query_light[q]) if query_light[q] < 64 else np.uint64(0)
         group_low, group_high = hull[HULL_BOX_LOW:HULL_BOX_LOW + 3], hull[HULL_BOX_HIGH:HULL_BOX_HIGH + 3]
         depth = 1
         stack[0] = 0
@@ -198,6 +201,8 @@ def _detect(node_low, node_high, node_axis, node_spread, record_low, record_high
             depth -= 1
             node = stack[depth]
             visits += 1
+            if bit and not node_lights[node] & bit:
+                continue
             if not _box_passes(hull, node_low[node], node_high[node]):
                 continue
             if _one_sided(node_axis[node], node_spread[node], node_low[node], node_high[node], group_low, group_high):
@@ -211,6 +216,8 @@ def _detect(node_low, node_high, node_axis, node_spread, record_low, record_high
             for r in range(leaf_first, min(leaf_first + leaf_size, n_records)):
                 cut = record_light[r] >= 0
                 if cut and record_light[r] != query_light[q]:
+                    continue
+                if bit and not lights_seen[r] & bit:
                     continue
                 if not _box_passes(hull, record_low[r], record_high[r]):
                     continue
@@ -245,6 +252,7 @@ def compile_detection() -> None:
     f, i, one = np.zeros((1, 3)), np.zeros(1, np.int64), np.zeros(1)
     faces = np.zeros((1, 2, 3))
     hull = np.zeros((1, HULL_WIDTH))
-    _detect(f, f, f, one, f, f, i, f, f, faces, np.zeros((1, 2), np.int64), faces, np.zeros((1, 2)), np.zeros((1, 2)),
-            hull, i, i, i, hull, i, i, i, np.zeros((1, COUPLE_WIDTH)), np.zeros((1, 3, 3)), np.zeros((1, 3), np.bool_), 1,
-            32, 0, 16)
+    bits = np.zeros(1, np.uint64)
+    _detect(f, f, f, one, bits, bits, f, f, i, f, f, faces, np.zeros((1, 2), np.int64), faces, np.zeros((1, 2)),
+            np.zeros((1, 2)), hull, i, i, i, hull, i, i, i, np.zeros((1, COUPLE_WIDTH)), np.zeros((1, 3, 3)),
+            np.zeros((1, 3), np.bool_), 1, 32, 0, 16)

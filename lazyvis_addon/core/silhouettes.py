@@ -109,6 +109,9 @@ class MeshEdges:
     in_light_planes: np.ndarray | None = None   # sorted light * T + triangle of faces in a light's plane
     node_axis: np.ndarray | None = None          # (2P - 1, 3) unit axis of each node's cone of face normals
     node_spread: np.ndarray | None = None        # (2P - 1,) its radius (inf: the node cannot be culled)
+    lights_seen: np.ndarray | None = None        # (E,) uint64: bit l set where the record may be a silhouette
+                                                 # seen from some point of light l (``_silhouette_lights``)
+    node_lights: np.ndarray | None = None        # (2P - 1,) uint64: the bits of the records under each node
 
     def __len__(self) -> int:
         return len(self.light)
@@ -173,6 +176,19 @@ class MeshEdges:
         edges = cls._in_tree_order(start, end, thirds, triangles_of, lights, winding)
         edges.n_triangles = n
         edges.in_light_planes = _in_light_planes(triangles, frames) if frames is not None else np.zeros(0, np.int64)
+        edges.lights_seen = np.full(len(edges), ALL_LIGHTS, np.uint64)
+        if frames is not None and len(edges):
+            _silhouette_lights(edges.start, edges.face_normal, edges.face_offset, edges.face_size, edges.triangle,
+                               edges.light, np.ascontiguousarray(frames.vertices, np.float64),
+                               np.ascontiguousarray(frames.vertex_count, np.int64), edges.lights_seen)
+        padded = np.zeros(edges.n_leaves * LEAF_EDGES, np.uint64)
+        padded[:len(edges)] = edges.lights_seen
+        level = np.bitwise_or.reduce(padded.reshape(edges.n_leaves, LEAF_EDGES), axis=1)
+        levels = [level]
+        while len(level) > 1:  # tree levels: log2 of the leaves
+            level = level[0::2] | level[1::2]
+            levels.append(level)
+        edges.node_lights = np.concatenate(levels[::-1])
         return edges
 
     @classmethod
@@ -255,6 +271,53 @@ def _normal_cones(face_normal: np.ndarray, face_size: np.ndarray, triangle: np.n
         axes.append(level_axis)
         spreads.append(np.maximum(reach[0], reach[1]))
     return np.concatenate(axes[::-1]), np.concatenate(spreads[::-1])
+
+
+# Every light's bit: a record or node that may be a silhouette from anywhere (lights beyond the 64th are
+# never culled this way).
+ALL_LIGHTS = np.uint64(0xFFFFFFFFFFFFFFFF)
+# Relative margin by which both faces' planes must keep a light's polygon on one side each for the record
+# to be no silhouette from any point of it (well above the arc test's SIGN_EPS).
+LIGHT_SIDE_EPS = 1e-9
+
+
+@njit(cache=True, nogil=True)
+def _silhouette_lights(start, face_normal, face_offset, face_size, triangle, cut_light, vertices, vertex_count, out):
+    """Clear bit l of ``out`` (E,) uint64 for the records that are a silhouette from no point of light l.
+
+    A record's arc, seen from a receiver x, lies in the plane through x and the edge, which meets the
+    light at the arc's points p; the signs of the edge's faces at x are those at p (on the far side of the
+    edge, both flipped), so an edge whose jump is not 0 at x crossing the light is a silhouette seen from
+    a point of the light. An edge between two faces whose planes keep the whole light polygon on opposite
+    sides each (m1 . (a - v) and m2 . (a - v) of one sign over its vertices v, with a margin, and the
+    signs opposite) is a silhouette from none of its points: it is no arc for any receiver of that light.
+    Rims, non-manifold and degenerate records and cut segments keep every bit. On a dense smooth mesh
+    under a small light most records go (Suzanne at level 3: 6 to 23 % stay per light).
+    """
+    n_lights = min(len(vertex_count), 64)
+    for r in range(len(start)):
+        if cut_light[r] >= 0 or face_normal.shape[1] < 2 or triangle[r, 0] < 0 or triangle[r, 1] < 0:
+            continue
+        if face_normal.shape[1] > 2 and triangle[r, 2] >= 0:
+            continue
+        if face_size[r, 0] == 0.0 or face_size[r, 1] == 0.0:
+            continue
+        for l in range(n_lights):
+            signs = np.zeros(2)
+            for f in range(2):
+                above, below = True, True
+                for v in range(vertex_count[l]):
+                    value = face_offset[r, f] - (face_normal[r, f, 0] * vertices[l, v, 0]
+                                                 + face_normal[r, f, 1] * vertices[l, v, 1]
+                                                 + face_normal[r, f, 2] * vertices[l, v, 2])
+                    reach = max(abs(start[r, 0] - vertices[l, v, 0]), abs(start[r, 1] - vertices[l, v, 1]),
+                                abs(start[r, 2] - vertices[l, v, 2]))
+                    margin = LIGHT_SIDE_EPS * face_size[r, f] * reach
+                    above &= value > margin
+                    below &= value < -margin
+                signs[f] = 1.0 if above else -1.0 if below else 0.0
+            if signs[0] != 0.0 and signs[0] == -signs[1]:
+                out[r] &= ~(np.uint64(1) << np.uint64(l))
 
 
 # Faces within this distance (relative to the scene's coordinates) of a light's plane lie in it: a mesh
@@ -568,9 +631,11 @@ def compile_kernels() -> bool:
     one, three = np.zeros(1), np.zeros((1, 3))
     _hull_rows(three, three, np.zeros(1, np.int64), one, one, three, three, three, three, np.zeros((1, 3, 2)),
                np.zeros((1, 3, 3)), np.zeros(1, np.int64), np.empty((1, HULL_WIDTH)))
+    _silhouette_lights(three, np.zeros((1, 2, 3)), np.zeros((1, 2)), np.zeros((1, 2)), np.zeros((1, 2), np.int64),
+                       np.zeros(1, np.int64), np.zeros((1, 3, 3)), np.zeros(1, np.int64), np.zeros(1, np.uint64))
     kernels = (detection_module._detect, arcs_module._arcs_in_cells, arrangement_module._fans,
                arrangement_module._jumps, _cone_planes, _bounding_cones, _reference_points, _hull_rows,
-               *compile_geometry())
+               _silhouette_lights, *compile_geometry())
     return any(kernel.stats.cache_misses for kernel in kernels)
 
 
