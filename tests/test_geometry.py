@@ -160,10 +160,8 @@ def test_horizon_clipping_equals_clipping_by_each_line():
     assert (setup.count[~above] == 0).all() and (got > 0).sum() > n // 4 and (expected == 0).sum() > n // 10
     assert setup.uv.shape[1] <= width + 2
     # Vertices within rounding of the line, on alternating sides: kept whole on the side they lean to.
-    from lazyvis_addon.core.geometry import _clip_to_horizons
+    from lazyvis_addon.core.geometry import clip_by_lines
     flat = np.array([[[0.0, 1e-17], [1.0, -1e-17], [2.0, 1e-17], [3.0, -1e-17], [1.5, 2e-17]]])
     for lean, kept in ((0.0, 5), (-10.0, 0)):
-        horizons = np.array([[[0.0, 1.0, lean * 1e-18], [0.0, 0.0, 1.0]]])  # y >= 0; always true
-        out, out_count = np.empty((1, 7, 2)), np.empty(1, np.int64)
-        _clip_to_horizons(flat, np.array([5]), np.array([0]), np.array([True]), horizons, out, out_count)
-        assert out_count[0] == kept
+        lines = np.array([[[0.0, 1.0, lean * 1e-18], [0.0, 0.0, 1.0]]])  # y >= 0; always true
+        assert clip_by_lines(flat, np.array([5]), lines)[1][0] == kept

@@ -481,39 +481,48 @@ def receiver_light(position: np.ndarray, geometric_normal: np.ndarray, shading_n
     # Only as wide as the widest light involved: frames pad every light to the largest polygon (a disk).
     width = max(int(frames.vertex_count[light].max()), 3) if len(light) else 3
     horizons = plane_lines(np.stack([geometric_normal, shading_normal], axis=1), rel, light, frames)  # (N, 2, 3)
-    uv = np.empty((len(light), width + 2, 2))
-    count = np.empty(len(light), np.int64)
-    _clip_to_horizons(np.ascontiguousarray(frames.uv[:, :width], np.float64),
-                      np.ascontiguousarray(frames.vertex_count, np.int64), np.ascontiguousarray(light, np.int64), lit,
-                      np.ascontiguousarray(horizons, np.float64), uv, count)
+    uv, count = clip_by_lines(frames.uv[light, :width], np.where(lit, frames.vertex_count[light], 0), horizons)
     uv = trim(uv, count)
     local = np.stack([np.einsum("nk,nk->n", rel, frames.tangent[light]),
                       np.einsum("nk,nk->n", rel, frames.bitangent[light]), height], axis=1)
     return ReceiverLight(light, uv, count, side, local, rel)
 
 
-@njit(cache=True, nogil=True)
-def _clip_to_horizons(light_uv, vertex_count, light, lit, horizons, out_uv, out_count):
-    """Each couple's light polygon (``light_uv`` (L, W, 2), counter-clockwise) clipped to where both its
-    horizon lines ``horizons`` (N, 2, 3) (a u + b v + c >= 0) hold; out_uv (N, W + 2, 2) padded by repeating
-    the last vertex, out_count (N,) (0: nothing, or less than a triangle, is left; or not ``lit``).
+def clip_by_lines(polygons: np.ndarray, count: np.ndarray, lines: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each convex 2-D polygon clipped to where all its lines hold, in one compiled pass.
 
-    A convex polygon crosses a line at most twice. Nearly collinear vertices within rounding of the line
-    can alternate sides and cross it more often (seen on the chapel's slats at 64 samples per pixel): such
-    a polygon touches the line only within rounding, so it is kept whole on the side where its vertices
-    lean. A vertex on the line is inside."""
+    Parameters
+    ----------
+    polygons : (N, W, 2) float64   counter-clockwise, padded (``count`` (N,) real vertices; 0: empty).
+    lines : (N, J, 3) float64      (a, b, c): the part where a u + b v + c >= 0 is kept (a vertex on a line
+                                   is inside).
+
+    Returns (N, W + J, 2) polygons padded by repeating the last vertex (zeros where empty) and their counts
+    (N,) int64 (0 where less than a triangle is left). A convex polygon crosses a line at most twice; one
+    whose vertices lie within rounding of a line and alternate sides (seen on the chapel's slats at 64
+    samples per pixel) touches it only within rounding, and is kept whole on the side where it leans.
+    """
+    out = np.empty((polygons.shape[0], polygons.shape[1] + lines.shape[1], 2))
+    out_count = np.empty(polygons.shape[0], np.int64)
+    _clip_by_lines(np.ascontiguousarray(polygons, np.float64), np.ascontiguousarray(count, np.int64),
+                   np.ascontiguousarray(lines, np.float64), out, out_count)
+    return out, out_count
+
+
+@njit(cache=True, nogil=True)
+def _clip_by_lines(polygons, count_in, lines, out_uv, out_count):
     capacity = out_uv.shape[1]
     polygon = np.empty((capacity, 2))
     clipped = np.empty((capacity, 2))
     side = np.empty(capacity)
-    for n in range(len(light)):
-        count = vertex_count[light[n]] if lit[n] else 0
+    for n in range(polygons.shape[0]):
+        count = count_in[n]
         for k in range(count):
-            polygon[k, 0], polygon[k, 1] = light_uv[light[n], k, 0], light_uv[light[n], k, 1]
-        for h in range(2):
+            polygon[k, 0], polygon[k, 1] = polygons[n, k, 0], polygons[n, k, 1]
+        for h in range(lines.shape[1]):
             if count == 0:
                 break
-            a, b, c = horizons[n, h, 0], horizons[n, h, 1], horizons[n, h, 2]
+            a, b, c = lines[n, h, 0], lines[n, h, 1], lines[n, h, 2]
             below, total, changes = False, 0.0, 0
             for k in range(count):
                 side[k] = a * polygon[k, 0] + b * polygon[k, 1] + c
@@ -555,6 +564,6 @@ def compile_geometry() -> tuple:
     _projected_solid_angles_uv(np.zeros((1, 4, 2)), np.zeros(1, np.int64), np.zeros((1, 3)), np.zeros((1, 3)), np.empty(1))
     _directions(np.zeros((1, 4, 2)), np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros((1, 3)), np.zeros((1, 3)),
                 np.zeros((1, 3)), np.zeros((1, 3)), np.empty((1, 4, 3)))
-    _clip_to_horizons(np.zeros((1, 4, 2)), np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros(1, np.bool_),
-                      np.zeros((1, 2, 3)), np.empty((1, 6, 2)), np.empty(1, np.int64))
-    return _irradiance_vectors, _projected_solid_angles_uv, _directions, _clip_to_horizons
+    _clip_by_lines(np.zeros((1, 4, 2)), np.zeros(1, np.int64), np.zeros((1, 2, 3)), np.empty((1, 6, 2)),
+                   np.empty(1, np.int64))
+    return _irradiance_vectors, _projected_solid_angles_uv, _directions, _clip_by_lines

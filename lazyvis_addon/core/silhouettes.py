@@ -46,7 +46,7 @@ from .detection import (HULL_BASE, HULL_BOX_HIGH, HULL_BOX_LOW, HULL_EPS, HULL_H
                         HULL_SIDE_NORMAL, HULL_SIDE_OFFSET, HULL_SIDE_VALID, HULL_TOWARD, HULL_WIDTH, compile_detection,
                         detect_arcs)
 from .blockers import _rank_within, _unique_points
-from .geometry import PLANE_EPS, LightFrames, ReceiverLight, clip_convex, compile_geometry, cross3, trim
+from .geometry import PLANE_EPS, LightFrames, ReceiverLight, clip_by_lines, compile_geometry, cross3, trim
 from .illumination import _pad_to
 
 # Edge records per leaf of the edge tree.
@@ -926,22 +926,23 @@ def _regions(couples: ReceiverLight, frames: LightFrames, arcs: Arcs, arcs_of: n
     cell = np.arange(int(n_cells.sum())) - cell_first[owner]
     cell_i, cell_j = cell // grid[owner], cell % grid[owner]
     # Clipped in batches of cells, keeping the non-empty ones: a grid's corner cells often miss the light,
-    # and the clip's (cell, vertex) temporaries of every cell at once were most of pass 2's memory.
+    # and the (cell, vertex) polygons of every cell at once were most of pass 2's memory.
     nonempty = np.zeros(len(owner), bool)
     kept_polygons, kept_counts = [], []
     for lo in range(0, len(owner), CELL_BATCH):  # batches of cells
         rows = slice(lo, lo + CELL_BATCH)
         batch_owner = owner[rows]
-        polygon, polygon_count = uv[batch_owner], count[batch_owner]
-        for axis, index, upper in ((0, cell_i[rows], False), (0, cell_i[rows] + 1, True), (1, cell_j[rows], False),
-                                   (1, cell_j[rows] + 1, True)):  # four sides of a cell
-            bound = low[batch_owner, axis] + index * step[batch_owner, axis]
-            side = polygon[..., axis] - bound[:, None]
-            polygon, polygon_count = clip_convex(polygon, polygon_count, -side if upper else side)
-            polygon = trim(polygon, polygon_count)
+        u0 = low[batch_owner, 0] + cell_i[rows] * step[batch_owner, 0]
+        u1 = low[batch_owner, 0] + (cell_i[rows] + 1) * step[batch_owner, 0]
+        v0 = low[batch_owner, 1] + cell_j[rows] * step[batch_owner, 1]
+        v1 = low[batch_owner, 1] + (cell_j[rows] + 1) * step[batch_owner, 1]
+        one, zero = np.ones(len(u0)), np.zeros(len(u0))
+        sides = np.stack([np.stack([one, zero, -u0], 1), np.stack([-one, zero, u1], 1), np.stack([zero, one, -v0], 1),
+                          np.stack([zero, -one, v1], 1)], axis=1)          # u >= u0, u <= u1, v >= v0, v <= v1
+        polygon, polygon_count = clip_by_lines(uv[batch_owner], count[batch_owner], sides)
         keep = polygon_count >= 3
         nonempty[rows] = keep
-        kept_polygons.append(polygon[keep])
+        kept_polygons.append(trim(polygon[keep], polygon_count[keep]))
         kept_counts.append(polygon_count[keep])
     cell_width = max([p.shape[1] for p in kept_polygons] + [3])
     cell_uv = np.concatenate([_pad_to(p, cell_width) for p in kept_polygons]) if kept_polygons else \
