@@ -29,6 +29,13 @@ SPLIT_SLACK = 1e-6
 # Pieces shorter than this (in their carrier's parameter) are rounding, not pieces.
 MIN_PIECE = 1e-14
 
+# A crossing is clean when it lies this far inside the arc that makes it (relative, about radians) and
+# that arc's plane is this far from containing the carrier: then D changes there by the arc's jump, and
+# the next piece's depth follows from the last one's. Elsewhere (an arc ending on the carrier, an arc
+# along it) the next piece's depth is worked out from R afresh.
+CLEAN_MARGIN = 1e-6
+CLEAN_ANGLE = 1e-9
+
 
 def visible_fans(arcs, light_dirs: np.ndarray, light_count: np.ndarray, reference: np.ndarray,
                  depth: np.ndarray):
@@ -105,11 +112,15 @@ def _straddles(va, vb):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _split(seg_start, seg_end, first, n, start, end, normal, skip, splits, va, vb, point):
+def _split(seg_start, seg_end, first, n, start, end, normal, lengths, skip, splits, split_arc, split_clean, va, vb,
+           point):
     """Parameters (written to ``splits``, returned count) where arcs first .. first + n - 1 (not ``skip``)
-    cross the segment seg_start -> seg_end, with SPLIT_SLACK. Also leaves each arc's plane's values at
-    the segment's ends in ``va``, ``vb`` (n,), for ``_near_depth``; ``point`` (3,) is scratch."""
+    cross the segment seg_start -> seg_end, with SPLIT_SLACK (as ``_on_arc``), the arc of each
+    (``split_arc``) and whether the crossing is clean (``split_clean``, see CLEAN_MARGIN). ``lengths``
+    (n, 3): |start|, |end|, |normal| of each arc. Also leaves each arc's plane's values at the segment's
+    ends in ``va``, ``vb`` (n,), for ``_near_depth``; ``point`` (3,) is scratch."""
     count = 0
+    reach = _norm(seg_start) + _norm(seg_end)
     for j in range(first, first + n):
         va[j - first] = _dot(normal[j], seg_start)
         vb[j - first] = _dot(normal[j], seg_end)
@@ -118,8 +129,15 @@ def _split(seg_start, seg_end, first, n, start, end, normal, skip, splits, va, v
         t = va[j - first] / (va[j - first] - vb[j - first])
         for k in range(3):
             point[k] = seg_start[k] + t * (seg_end[k] - seg_start[k])
-        if _on_arc(point, start[j], end[j], normal[j], SPLIT_SLACK):
+        from_start, to_end = _cross_dot(start[j], point, normal[j]), _cross_dot(point, end[j], normal[j])
+        size = _norm(point) * lengths[j - first, 2]
+        if from_start > -SPLIT_SLACK * size * lengths[j - first, 0] and \
+                to_end > -SPLIT_SLACK * size * lengths[j - first, 1]:
             splits[count] = t
+            split_arc[count] = j
+            split_clean[count] = from_start > CLEAN_MARGIN * size * lengths[j - first, 0] and \
+                to_end > CLEAN_MARGIN * size * lengths[j - first, 1] and \
+                abs(va[j - first]) + abs(vb[j - first]) > CLEAN_ANGLE * lengths[j - first, 2] * reach
             count += 1
     return count
 
@@ -149,32 +167,51 @@ def _near_depth(seg_start, seg_end, t_mid, own, first, n, start, end, normal, ju
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _breakpoints(seg_start, seg_end, low, high, skip, first, n, start, end, normal, splits, va, vb, point):
+def _breakpoints(seg_start, seg_end, low, high, skip, first, n, start, end, normal, lengths, splits, split_arc,
+                 split_clean, va, vb, point):
     """The carrier seg_start -> seg_end's part low .. high cut where the arcs (not ``skip``) cross it: the
-    sorted parameters low, the crossings strictly inside, high, written to ``splits``; returns their
-    count. (A light edge's crossings all lie inside its 0 .. 1; an arc's may fall outside its cone range.)"""
-    s = _split(seg_start, seg_end, first, n, start, end, normal, skip, splits, va, vb, point)
+    sorted parameters low, the crossings strictly inside, high, written to ``splits`` with their arcs and
+    cleanness (``_split``; -1 and False for low and high); returns their count. (A light edge's crossings
+    all lie inside its 0 .. 1; an arc's may fall outside its cone range.)"""
+    s = _split(seg_start, seg_end, first, n, start, end, normal, lengths, skip, splits, split_arc, split_clean, va, vb,
+               point)
     kept = 0
     for q in range(s):
         if splits[q] > low and splits[q] < high:
-            splits[kept] = splits[q]
+            splits[kept], split_arc[kept], split_clean[kept] = splits[q], split_arc[q], split_clean[q]
             kept += 1
-    splits[kept] = low
-    splits[kept + 1] = high
-    _sort(splits, kept + 2)
+    splits[kept], split_arc[kept], split_clean[kept] = low, -1, False
+    splits[kept + 1], split_arc[kept + 1], split_clean[kept + 1] = high, -1, False
+    _sort(splits, split_arc, split_clean, kept + 2)
     return kept + 2
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _sort(values, n):
-    """Sort values[:n] in place (insertion sort: a few dozen splits per carrier)."""
+def _sort(values, arc, clean, n):
+    """Sort values[:n] in place, and arc[:n], clean[:n] with them (insertion sort: a few dozen splits per
+    carrier)."""
     for i in range(1, n):
-        v = values[i]
+        v, a, c = values[i], arc[i], clean[i]
         j = i - 1
         while j >= 0 and values[j] > v:
-            values[j + 1] = values[j]
+            values[j + 1], arc[j + 1], clean[j + 1] = values[j], arc[j], clean[j]
             j -= 1
-        values[j + 1] = v
+        values[j + 1], arc[j + 1], clean[j + 1] = v, a, c
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _step_depth(d, known, q, splits, split_arc, split_clean, first, jump, ref_value, va):
+    """D on the reference side of a carrier's piece q from that of piece q - 1 (``d``, valid if ``known``):
+    a clean crossing at splits[q] by arc j changes it by jump_j, + when the carrier leaves R's side of
+    arc j's plane there (which side it comes from: the sign of j's plane at the carrier's start, ``va``)
+    and - when it comes back. Returns (d, known): unknown after a crossing that is not clean."""
+    if q == 0 or not known:
+        return d, False
+    j = split_arc[q]
+    if not split_clean[q] or ref_value[j - first] == 0.0:
+        return d, False
+    from_reference_side = (va[j - first] > 0.0) == (ref_value[j - first] > 0.0)
+    return d + jump[j] if from_reference_side else d - jump[j], True
 
 
 @njit(cache=True, nogil=True)
@@ -194,9 +231,14 @@ def _fans(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_dirs
         n, first = arcs_of[c], first_arc[c]
         ref = reference[c]
         ref_value = np.empty(n)
+        lengths = np.empty((n, 3))
         for j in range(n):
             ref_value[j] = _dot(normal[first + j], ref)
+            lengths[j, 0], lengths[j, 1] = _norm(start[first + j]), _norm(end[first + j])
+            lengths[j, 2] = _norm(normal[first + j])
         splits = np.empty(max(n, 1) + 2)
+        split_arc = np.empty(max(n, 1) + 2, np.int64)
+        split_clean = np.empty(max(n, 1) + 2, np.bool_)
         va, vb = np.empty(n), np.empty(n)
         low = 0
         # Light edge pieces first: their depths decide whether the light is whole (see below).
@@ -208,13 +250,19 @@ def _fans(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_dirs
         for k in range(count):
             seg_start = light_dirs[c, k]
             seg_end = light_dirs[c, k + 1 if k + 1 < count else 0]
-            cuts = _breakpoints(seg_start, seg_end, 0.0, 1.0, -1, first, n, start, end, normal, splits, va, vb, point)
+            cuts = _breakpoints(seg_start, seg_end, 0.0, 1.0, -1, first, n, start, end, normal, lengths, splits,
+                                split_arc, split_clean, va, vb, point)
+            d_near, known = 0, False
             for q in range(cuts - 1):
                 t0, t1 = splits[q], splits[q + 1]
+                d_near, known = _step_depth(d_near, known, q, splits, split_arc, split_clean, first, jump, ref_value,
+                                            va)
                 if not t1 > t0 + MIN_PIECE:
                     continue
-                d_near = _near_depth(seg_start, seg_end, 0.5 * (t0 + t1), -1, first, n, start, end, normal, jump,
-                                     ref, ref_value, depth[c], va, vb, mid, point)
+                if not known:
+                    d_near = _near_depth(seg_start, seg_end, 0.5 * (t0 + t1), -1, first, n, start, end, normal,
+                                         jump, ref, ref_value, depth[c], va, vb, mid, point)
+                    known = True
                 low = min(low, d_near)
                 for axis in range(3):
                     seg = seg_end[axis] - seg_start[axis]
@@ -228,14 +276,19 @@ def _fans(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_dirs
         whole[c] = is_whole
         # Arc pieces: a boundary where D <= 0 on one side only.
         for i in range(first, first + n):
-            cuts = _breakpoints(start[i], end[i], enter[i], leave[i], i, first, n, start, end, normal, splits, va, vb,
-                                point)
+            cuts = _breakpoints(start[i], end[i], enter[i], leave[i], i, first, n, start, end, normal, lengths,
+                                splits, split_arc, split_clean, va, vb, point)
+            d_near, known = 0, False
             for q in range(cuts - 1):
                 t0, t1 = splits[q], splits[q + 1]
+                d_near, known = _step_depth(d_near, known, q, splits, split_arc, split_clean, first, jump, ref_value,
+                                            va)
                 if not t1 > t0 + MIN_PIECE:
                     continue
-                d_near = _near_depth(start[i], end[i], 0.5 * (t0 + t1), i, first, n, start, end, normal, jump,
-                                     ref, ref_value, depth[c], va, vb, mid, point)
+                if not known:
+                    d_near = _near_depth(start[i], end[i], 0.5 * (t0 + t1), i, first, n, start, end, normal, jump,
+                                         ref, ref_value, depth[c], va, vb, mid, point)
+                    known = True
                 d_far = d_near + jump[i]
                 low = min(low, min(d_near, d_far))
                 seen_near = d_near <= 0
