@@ -124,17 +124,16 @@ def test_stacked_plates_and_a_pole_through_the_lights_plane():
 
 def test_foliage_cells_and_buffers_change_nothing(monkeypatch):
     """Many leaves over a floor: couples crossed by many arcs are cut into cells, each with its own
-    reference depth; cells, no cells and detection's arc buffers outgrown again and again (each walk goes
-    on in a new buffer from the query it was in) give the same image, the reference's."""
-    from lazyvis_addon.core import detection
+    reference depth; cells, no cells and chunks of a query or two (detection's buffer outgrown again and
+    again, each walk going on in a new buffer from the query it was in) give the same image, the
+    reference's."""
     scene = plane_under_light(resolution=12, blocker=leaves(150, seed=3))
     image, reference = exact(scene)
     assert_exact(image, reference)
     out = render(scene, CENTRES)
     assert out.stats["cells"] > 0
     monkeypatch.setattr(silhouettes, "CELL_ARCS", 10 ** 9)
-    monkeypatch.setattr(detection, "ARCS_PER_COUPLE", 0)
-    monkeypatch.setattr(detection, "MIN_ARC_BUFFER", 1)
+    monkeypatch.setattr(silhouettes, "ARC_CHUNK", 1)
     whole = render(scene, CENTRES)
     assert whole.stats["cells"] == 0 and whole.stats["arcs"] == out.stats["arcs"]
     np.testing.assert_allclose(whole.combined, out.combined, rtol=1e-9, atol=1e-12)

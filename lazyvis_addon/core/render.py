@@ -349,16 +349,23 @@ def _shade_silhouettes(part: SurfacePoints, bsdf: SurfaceBsdf, pixel_global: np.
     n_terms, rounds = 0, 0
     for lights in groups:  # lights of similar polygon size: a handful of groups
         couples, couple_pixel = couples_for(part, frames, np.broadcast_to(~lights[None, :], (n_points, len(frames))))
-        uv, couple, sign, (whole, whole_uv, whole_count), hidden, found = silhouette_pieces(
-            part, frames, edges, tracer, couples, couple_pixel)
-        fans = VisiblePieces(couples, couple_pixel, uv, np.full(len(couple), 3, np.int64), couple,
-                             found["max_arcs_per_couple"], sign)
-        lights_whole = VisiblePieces(couples, couple_pixel, whole_uv, whole_count, whole,
-                                     found["max_arcs_per_couple"], np.ones(len(whole)))
-        weights = couple_weights(fans, part, frames, bsdf, settings, pixel_global, more=lights_whole)
+        found = dict.fromkeys(SILHOUETTE_COUNTERS + ("max_arcs_per_couple",), 0)
+        visible = np.zeros(len(couple_pixel), bool)
+        weights = np.zeros((len(couple_pixel), 3))
+        # Chunks of couples: each couple's terms lie in one chunk, so their clamped sums add.
+        for uv, couple, sign, (whole, whole_uv, whole_count) in silhouette_pieces(part, frames, edges, tracer,
+                                                                                 couples, couple_pixel, found):
+            fans = VisiblePieces(couples, couple_pixel, uv, np.full(len(couple), 3, np.int64), couple,
+                                 found["max_arcs_per_couple"], sign)
+            lights_whole = VisiblePieces(couples, couple_pixel, whole_uv, whole_count, whole,
+                                         found["max_arcs_per_couple"], np.ones(len(whole)))
+            weights += couple_weights(fans, part, frames, bsdf, settings, pixel_global, more=lights_whole)
+            visible[couple] = True
+            visible[whole] = True
+            n_terms += len(couple) + len(whole)
         result += reflected_radiance(n_points, frames, couples, couple_pixel, weights)
-        n_terms += len(couple) + len(whole)
         rounds = max(rounds, found["max_arcs_per_couple"])
+        hidden = ~visible
         extra["umbra"][couple_pixel[hidden], couples.light[hidden]] = True
         extra["arcs_per_pixel"] += np.bincount(couple_pixel, weights=found["arcs_of_couple"],
                                                minlength=n_points).astype(np.int64)

@@ -65,7 +65,8 @@ CELL_TARGET = 12
 MAX_GRID = 24
 # Cells clipped per array batch.
 CELL_BATCH = 1 << 15
-# Arcs per chunk of couples whose regions, depths and arrangement are worked out together.
+# Arcs per chunk of couples whose detection, regions, depths, arrangement and integrals are worked out
+# together (about 7 MB of arcs).
 ARC_CHUNK = 1 << 16
 # Hits a reference depth ray may count before it gives up (the scene is then assumed solid there).
 DEPTH_ROUNDS = 64
@@ -724,28 +725,29 @@ def _directions_to_uv(couples: ReceiverLight, frames: LightFrames, couple: np.nd
 
 
 def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, couples: ReceiverLight,
-                      couple_pixel: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
-    """The visible region of each couple of a batch as signed triangles in its light's plane.
+                      couple_pixel: np.ndarray, stats: dict):
+    """The visible region of each couple of a batch as signed triangles in its light's plane, in chunks of
+    couples of about ARC_CHUNK arcs (a generator: a chunk's terms are integrated before the next chunk is
+    worked out, so memory follows the chunk). Every couple's terms lie in one chunk.
 
     Parameters
     ----------
     surface : SurfacePoints of the batch; couples, couple_pixel : its lit couples (``couples_for``).
+    stats : dict          counters to add to: tree nodes visited, edge candidates tested exactly, arcs,
+                          reference depth rays, inconsistent couples, cells, most arcs of a couple; and
+                          "arcs_of_couple" (Nc,) int64, filled in.
 
-    Returns
-    -------
+    Yields
+    ------
     uv : (M, 3, 2) float64 triangles (R, p, q), couple : (M,) int64, sign : (M,) float64,
     polygons : (couple (W,), uv (W, K, 2), count (W,))   further terms of sign +1: whole lights or cells
-                          (couples wholly visible, or whose hidden part the fans subtract),
-    hidden : (Nc,) bool   no part of the light is visible (umbra),
-    stats : dict          edge candidates tested, arcs, reference depth rays, inconsistent couples.
+                          (couples wholly visible, or whose hidden part the fans subtract).
+    A couple with no term has no visible part (umbra).
     """
     n_couples = len(couple_pixel)
-    stats = {"nodes_visited": 0, "edge_tests": 0, "arcs": 0, "depth_rays": 0, "inconsistent_couples": 0,
-             "max_arcs_per_couple": 0, "cells": 0}
+    stats["arcs_of_couple"] = arcs_of = np.zeros(n_couples, np.int64)
     if n_couples == 0:
-        stats["arcs_of_couple"] = np.zeros(0, np.int64)
-        polygons = (np.zeros(0, np.int64), np.zeros((0, 3, 2)), np.zeros(0, np.int64))
-        return np.zeros((0, 3, 2)), np.zeros(0, np.int64), np.zeros(0), polygons, np.zeros(0, bool), stats
+        return
     position = surface.position[couple_pixel]
     own = surface.index_triangle[couple_pixel]
     light_dirs = couples.directions(frames)
@@ -798,50 +800,27 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
     unit_query = np.repeat(np.arange(len(keys)), query_units)
     hulls = hull_table(frames, group_low[query_group], group_high[query_group], query_light, query_side, query_height)
     unit_hulls = hull_table(frames, unit_low, unit_high, query_light[unit_query], query_side[unit_query], unit_height)
-    found, stats["edge_tests"], stats["nodes_visited"] = detect_arcs(
-        edges, LEAF_EDGES, hulls, query_light, (query_unit, query_units, unit_hulls, unit_first, unit_size), by_query,
-        couples, frames, position, own, cone, cone_valid, bound, reference)
-    arcs = Arcs(*found)
-    arcs = arcs.take(np.argsort(arcs.couple, kind="stable"))
-    stats["arcs"] = len(arcs.couple)
-    arcs_of = np.bincount(arcs.couple, minlength=n_couples)
-    stats["max_arcs_per_couple"] = int(arcs_of.max()) if n_couples else 0
-    stats["arcs_of_couple"] = arcs_of
-
-    # The rest runs per chunk of couples of about ARC_CHUNK arcs: a heavy couple's cells hold its arcs
-    # several times over, and the cells of a whole batch of foliage were most of pass 2's memory.
-    arc_bounds = np.concatenate([[0], np.cumsum(arcs_of)])
-    couple_cuts = np.unique(np.concatenate([[0], np.searchsorted(arc_bounds, np.arange(ARC_CHUNK, len(arcs.couple),
-                                                                                      ARC_CHUNK)), [n_couples]]))
-    parts = []
-    visible = np.zeros(n_couples, bool)
-    for c0, c1 in zip(couple_cuts[:-1], couple_cuts[1:]):  # chunks of couples
-        if c1 <= c0:
-            continue
-        chunk_arcs = arcs.take(slice(arc_bounds[c0], arc_bounds[c1]))
-        parts.append(_visible_parts(surface, couple_pixel, couples, frames, edges, tracer, chunk_arcs, arcs_of,
-                                    reference, reference_uv, position, own, np.arange(c0, c1), visible, stats))
-    uv = np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 3, 2))
-    piece_couple = np.concatenate([p[1] for p in parts]) if parts else np.zeros(0, np.int64)
-    sign = np.concatenate([p[2] for p in parts]) if parts else np.zeros(0)
-    polygons = _concat_polygons([p[3] for p in parts])
-    return uv, piece_couple, sign, polygons, ~visible, stats
-
-
-def _concat_polygons(parts):
-    """Concatenate (couple, uv (W, K, 2), count) triples of polygons of different widths K."""
-    if not parts:
-        return np.zeros(0, np.int64), np.zeros((0, 3, 2)), np.zeros(0, np.int64)
-    width = max(max(p[1].shape[1] for p in parts), 3)
-    return (np.concatenate([p[0] for p in parts]), np.concatenate([_pad_to(p[1], width) for p in parts]),
-            np.concatenate([p[2] for p in parts]))
+    chunks = detect_arcs(edges, LEAF_EDGES, hulls, query_light, (query_unit, query_units, unit_hulls, unit_first,
+                                                                 unit_size), by_query, couples, frames, position,
+                         own, cone, cone_valid, bound, reference, ARC_CHUNK)
+    for (first, last), found, tests, visits in chunks:  # chunks of queries, about ARC_CHUNK arcs each
+        members = np.sort(by_query[query_first[first]:query_first[last - 1] + query_size[last - 1]])
+        arcs = Arcs(*found)
+        arcs = arcs.take(np.argsort(arcs.couple, kind="stable"))
+        arcs_of[members] = np.bincount(arcs.couple, minlength=n_couples)[members]
+        stats["nodes_visited"] += visits
+        stats["edge_tests"] += tests
+        stats["arcs"] += len(arcs.couple)
+        stats["max_arcs_per_couple"] = max(stats["max_arcs_per_couple"], int(arcs_of[members].max()))
+        yield _visible_parts(surface, couple_pixel, couples, frames, edges, tracer, arcs, arcs_of, reference,
+                             reference_uv, position, own, members, stats)
 
 
 def _visible_parts(surface, couple_pixel, couples, frames, edges, tracer, arcs: Arcs, arcs_of: np.ndarray,
-                   reference, reference_uv, position, own, members: np.ndarray, visible: np.ndarray, stats: dict):
-    """Regions, reference depths and the arrangement of the couples ``members`` (a contiguous range, whose
-    arcs ``arcs`` are): signed fan triangles (uv (M, 3, 2), couple (M,), sign (M,)) and whole polygons
-    (couple, uv, count); marks the couples with anything visible in ``visible`` and adds to ``stats``."""
+                   reference, reference_uv, position, own, members: np.ndarray, stats: dict):
+    """Regions, reference depths and the arrangement of the couples ``members`` (sorted, whose arcs
+    ``arcs`` are, sorted by couple): signed fan triangles (uv (M, 3, 2), couple (M,), sign (M,)) and whole
+    polygons (couple, uv, count); adds to ``stats``."""
     # Regions: a couple's light, or, where many arcs cross it (foliage), the cells of a grid over it, so
     # that the arrangement's cost (pairs of arcs) follows the arcs per cell.
     heavy = members[arcs_of[members] > CELL_ARCS]
@@ -892,8 +871,6 @@ def _visible_parts(surface, couple_pixel, couples, frames, edges, tracer, arcs: 
     uv = np.stack([region_ref_uv[piece_region],
                    _directions_to_uv(couples, frames, piece_couple, p_start),
                    _directions_to_uv(couples, frames, piece_couple, p_end)], axis=1)
-    visible[piece_couple] = True
-    visible[region_couple[whole_regions]] = True
     polygons = (region_couple[whole_regions], trim(region_uv[whole_regions], region_count[whole_regions]),
                 region_count[whole_regions])
     return uv, piece_couple, sign, polygons
