@@ -5,7 +5,8 @@ different surface normals or whose illumination computations based on the first 
 different spectral radiance values". ``refine_mask`` marks a pixel when any of its 8 neighbours
 
 - sees another triangle whose normal differs (by more than ``normal_angle``; coplanar triangles of one
-  polygon do not count, and a pixel that sees nothing differs from one that sees a surface),
+  polygon do not count, nor, given shading normals, the triangles of a smooth-shaded mesh; a pixel that
+  sees nothing differs from one that sees a surface),
 - sees another material, or
 - has a radiance that differs by more than ``relative_threshold`` of the larger of the two (largest
   channel difference against the largest channel), ignoring differences below ``radiance_floor``.
