@@ -227,24 +227,27 @@ def _fans(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_dirs
     inconsistent = 0
     m = 0
     mid, point = np.empty(3), np.empty(3)
+    # Scratch for the couple with the most arcs, shared by all (allocations per couple cost as much as
+    # the work of a couple with a few arcs).
+    most = max(arcs_of.max(), 1) if n_couples else 1
+    ref_value = np.empty(most)
+    lengths = np.empty((most, 3))
+    splits = np.empty(most + 2)
+    split_arc = np.empty(most + 2, np.int64)
+    split_clean = np.empty(most + 2, np.bool_)
+    va, vb = np.empty(most), np.empty(most)
+    edge_pieces = np.empty((width * (most + 1), 2, 3))
+    edge_seen = np.empty(width * (most + 1), np.bool_)
     for c in range(n_couples):
         n, first = arcs_of[c], first_arc[c]
         ref = reference[c]
-        ref_value = np.empty(n)
-        lengths = np.empty((n, 3))
         for j in range(n):
             ref_value[j] = _dot(normal[first + j], ref)
             lengths[j, 0], lengths[j, 1] = _norm(start[first + j]), _norm(end[first + j])
             lengths[j, 2] = _norm(normal[first + j])
-        splits = np.empty(max(n, 1) + 2)
-        split_arc = np.empty(max(n, 1) + 2, np.int64)
-        split_clean = np.empty(max(n, 1) + 2, np.bool_)
-        va, vb = np.empty(n), np.empty(n)
         low = 0
         # Light edge pieces first: their depths decide whether the light is whole (see below).
         count = light_count[c]
-        edge_pieces = np.empty((width * (n + 1), 2, 3))
-        edge_seen = np.empty(width * (n + 1), np.bool_)
         n_edge_pieces = 0
         visible_edges = 0
         for k in range(count):
