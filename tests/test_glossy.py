@@ -51,7 +51,7 @@ def points(n: int, rng, materials: Materials, row: int = 0) -> SurfacePoints:
     normal = np.tile([0.0, 0.0, 1.0], (n, 1))
     return SurfacePoints(np.ones(n, bool), np.zeros((n, 3)), normal, normal, np.zeros(n, np.int64),
                          np.tile(materials.albedo[row], (n, 1)), np.zeros((n, 3)), np.zeros(n),
-                         np.full(n, row, np.int64), view)
+                         np.full(n, row, np.int64), view, np.zeros((n, 3)), np.zeros(n))
 
 
 def cosine_hemisphere(n: int, rng) -> np.ndarray:

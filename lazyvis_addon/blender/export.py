@@ -608,7 +608,8 @@ class _DepsgraphReader:
         self.unreadable: list[str] = []
         self.meshes: dict[int, _LocalMesh] = {}
         # triangles, material, normals, corner UVs (None when no material of the object is textured)
-        self.parts: list[tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]] = []
+        # triangles, material, shading normals, corner UVs, Shadow Terminator Geometry Offset
+        self.parts: list[tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None, float]] = []
         self.emitter_parts: list[tuple[np.ndarray, np.ndarray]] = []  # triangles, material
         self.light_polygons: list[np.ndarray] = []
         self.light_radiance: list[np.ndarray] = []
@@ -734,7 +735,10 @@ class _DepsgraphReader:
         if emitting.any():
             self.emitter_parts.append((triangles[emitting], material[emitting]))
             self.counts["emitter_triangles"] += int(emitting.sum())
-        self.parts.append((triangles, material, normals, uvs))
+        if getattr(obj, "shadow_terminator_shading_offset", 0.0) > 0.0:
+            self.skip("Shadow Terminator Shading Offset is not supported (the Geometry Offset is)", obj.name)
+        self.parts.append((triangles, material, normals, uvs, float(getattr(obj, "shadow_terminator_geometry_offset",
+                                                                            0.0))))
         self.counts["mesh_triangles"] += len(triangles)
 
     def corner_uvs(self, obj, local: _LocalMesh, material: np.ndarray) -> np.ndarray | None:
@@ -845,9 +849,14 @@ class _DepsgraphReader:
         if any(p[3] is not None for p in self.parts):
             corner_uvs = np.concatenate([p[3] if p[3] is not None else np.zeros(p[0].shape[:2] + (2,))
                                          for p in self.parts])
+        # Cycles' Shadow Terminator Geometry Offset lifts shadow rays off smooth-shaded triangles only.
+        terminator_offset = None
+        if normals is not None and any(p[4] > 0 and p[2] is not None for p in self.parts):
+            terminator_offset = np.concatenate([np.full(len(p[0]), p[4] if p[2] is not None else 0.0)
+                                                for p in self.parts])
         lights, names = self.lights()
         scene = Scene(triangles, material_index, self.material_table(), lights, camera, background, normals,
-                      corner_uvs, list(self.textures))
+                      corner_uvs, list(self.textures), terminator_offset)
         return Export(scene, list(self.materials), names, dict(self.counts))
 
     def material_table(self) -> Materials:

@@ -195,6 +195,13 @@ def polygon_area_2d(uv: np.ndarray) -> np.ndarray:
     return 0.5 * np.sum(uv[..., 0] * nxt[..., 1] - nxt[..., 0] * uv[..., 1], axis=1)
 
 
+def pad_to(points: np.ndarray, width: int) -> np.ndarray:
+    """Pad (M, K, D) polygons to K = width by repeating the last column (already the last vertex)."""
+    if points.shape[1] >= width:
+        return points
+    return np.concatenate([points, np.repeat(points[:, -1:], width - points.shape[1], axis=1)], axis=1)
+
+
 def trim(points: np.ndarray, count: np.ndarray) -> np.ndarray:
     """Drop trailing padding columns that no polygon uses (keeps at least 3)."""
     width = max(int(count.max()) if len(count) else 3, 3)
@@ -454,6 +461,20 @@ class ReceiverLight:
         _directions(uv, rows, np.ascontiguousarray(self.light, np.int64), np.ascontiguousarray(self.local, np.float64),
                     frames.tangent, frames.bitangent, frames.normal, out)
         return out
+
+    def take(self, index) -> "ReceiverLight":
+        return ReceiverLight(self.light[index], self.uv[index], self.count[index], self.side[index], self.local[index],
+                             self.receiver_in_light[index])
+
+    def moved(self, frames: LightFrames, shift: np.ndarray) -> "ReceiverLight":
+        """The couples with their receivers moved by ``shift`` (N, 3) (world units), their lights as they
+        were clipped: what shadow rays leaving from a lifted origin see (Cycles' Shadow Terminator Geometry
+        Offset)."""
+        light = self.light
+        local = self.local + np.stack([np.einsum("nk,nk->n", shift, frames.tangent[light]),
+                                       np.einsum("nk,nk->n", shift, frames.bitangent[light]),
+                                       np.einsum("nk,nk->n", shift, frames.normal[light])], axis=1)
+        return ReceiverLight(light, self.uv, self.count, self.side, local, self.receiver_in_light + shift)
 
 
 @njit(cache=True, nogil=True)

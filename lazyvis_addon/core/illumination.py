@@ -20,7 +20,7 @@ from .blocker_map import BlockerMap, first_blocker
 from .blockers import BlockerPolygons, silhouette_planes
 from .bsdf import SurfaceBsdf
 from .geometry import (PLANE_EPS, LightFrames, ReceiverLight, blocker_in_front_of_light, clip_convex, cone_planes,
-                       plane_lines, polygon_area_2d, projected_solid_angle_uv, receiver_light, split_convex, trim)
+                       pad_to, plane_lines, polygon_area_2d, projected_solid_angle_uv, receiver_light, split_convex, trim)
 from .ggx import ROUGHNESS_SQ_THRESHOLD, alpha_from_roughness, ggx_reflection_pdf, sample_ggx_reflection
 from .ltc import ltc_shape_integral
 from .phong import phong_exponent_from_roughness, phong_polygon_integral
@@ -190,8 +190,8 @@ def _signed_terms(couples, subset, entry_couple, rank, lines, line_valid, min_ar
                                  & np.where(real, side < 0.0, False).any(axis=1))
             if len(cut):
                 clipped, part_count[cut] = clip_convex(part_uv[cut], part_count[cut], side[cut])
-                part_uv = _pad_to(part_uv, clipped.shape[1])
-                part_uv[cut] = _pad_to(clipped, part_uv.shape[1])
+                part_uv = pad_to(part_uv, clipped.shape[1])
+                part_uv[cut] = pad_to(clipped, part_uv.shape[1])
         owner = couple[straddle]
         big = (part_count >= 3) & (np.abs(polygon_area_2d(part_uv)) > min_area[owner])
         uv, count, couple, sign = _concat_terms((uv[~covered], count[~covered], couple[~covered], sign[~covered]),
@@ -336,27 +336,20 @@ def _subtract_blocker(uv, count, couple, lines, valid, min_area):
         remainder_count = remainder_count.copy()
         remainder_count[whole] = 0
         if len(cut):
-            remainder = _pad_to(remainder, inside.shape[1])
+            remainder = pad_to(remainder, inside.shape[1])
             remainder[cut] = inside
             remainder_count[cut] = inside_count
     if not out_uv:
         return np.zeros((0, 3, 2)), np.zeros(0, np.int64), np.zeros(0, np.int64), drop
     width = max(p.shape[1] for p in out_uv)
-    new_uv = np.concatenate([_pad_to(p, width) for p in out_uv])
+    new_uv = np.concatenate([pad_to(p, width) for p in out_uv])
     new_count = np.concatenate(out_count)
     return trim(new_uv, new_count), new_count, np.concatenate(out_couple), drop
 
 
-def _pad_to(points: np.ndarray, width: int) -> np.ndarray:
-    """Pad (M, K, D) polygons to K = width by repeating the last column (already the last vertex)."""
-    if points.shape[1] >= width:
-        return points
-    return np.concatenate([points, np.repeat(points[:, -1:], width - points.shape[1], axis=1)], axis=1)
-
-
 def _concat_pieces(*parts):
     width = max(max(p[0].shape[1] for p in parts), 3)
-    uv = np.concatenate([_pad_to(p[0], width) for p in parts])
+    uv = np.concatenate([pad_to(p[0], width) for p in parts])
     count = np.concatenate([p[1] for p in parts])
     couple = np.concatenate([p[2] for p in parts])
     return trim(uv, count), count, couple

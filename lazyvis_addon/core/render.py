@@ -25,6 +25,7 @@ from .geometry import light_groups
 from .illumination import (VisiblePieces, couple_weights, couples_for, reflected_radiance, standard_mc,
                            verify_visible, visible_pieces)
 from .silhouettes import MeshEdges, compile_kernels, pixel_batch_for, silhouette_pieces
+from .terminator import terminator_couples
 from .progress import Progress
 from .scene import Scene
 from .settings import Settings
@@ -349,12 +350,15 @@ def _shade_silhouettes(part: SurfacePoints, bsdf: SurfaceBsdf, pixel_global: np.
     n_terms, rounds = 0, 0
     for lights in groups:  # lights of similar polygon size: a handful of groups
         couples, couple_pixel = couples_for(part, frames, np.broadcast_to(~lights[None, :], (n_points, len(frames))))
+        # Couples seen from lifted origins (Shadow Terminator Geometry Offset) come as strips of their
+        # lights, couples of their own: their terms add up per pixel like any lights'.
+        couples, couple_pixel, origin_shift = terminator_couples(part, frames, couples, couple_pixel, lights)
         found = dict.fromkeys(SILHOUETTE_COUNTERS + ("max_arcs_per_couple",), 0)
         visible = np.zeros(len(couple_pixel), bool)
         weights = np.zeros((len(couple_pixel), 3))
         # Chunks of couples: each couple's terms lie in one chunk, so their clamped sums add.
-        for uv, couple, sign, (whole, whole_uv, whole_count) in silhouette_pieces(part, frames, edges, tracer,
-                                                                                 couples, couple_pixel, found):
+        for uv, couple, sign, (whole, whole_uv, whole_count) in silhouette_pieces(
+                part, frames, edges, tracer, couples, couple_pixel, found, origin_shift):
             fans = VisiblePieces(couples, couple_pixel, uv, np.full(len(couple), 3, np.int64), couple,
                                  found["max_arcs_per_couple"], sign)
             lights_whole = VisiblePieces(couples, couple_pixel, whole_uv, whole_count, whole,
@@ -365,8 +369,11 @@ def _shade_silhouettes(part: SurfacePoints, bsdf: SurfaceBsdf, pixel_global: np.
             n_terms += len(couple) + len(whole)
         result += reflected_radiance(n_points, frames, couples, couple_pixel, weights)
         rounds = max(rounds, found["max_arcs_per_couple"])
-        hidden = ~visible
-        extra["umbra"][couple_pixel[hidden], couples.light[hidden]] = True
+        seen = np.zeros((n_points, len(frames)), bool)
+        seen[couple_pixel[visible], couples.light[visible]] = True
+        lit = np.zeros((n_points, len(frames)), bool)
+        lit[couple_pixel, couples.light] = True
+        extra["umbra"] |= lit & ~seen
         extra["arcs_per_pixel"] += np.bincount(couple_pixel, weights=found["arcs_of_couple"],
                                                minlength=n_points).astype(np.int64)
         for name in SILHOUETTE_COUNTERS:

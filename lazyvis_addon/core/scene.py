@@ -280,6 +280,10 @@ class Scene:
         Texture coordinates at each triangle corner (Blender's render UV map), needed by textures.
     textures : list[ImageTexture]
         Images that materials' ``texture_index`` refers to.
+    terminator_offset : (T,) float64 or None
+        Cycles' Shadow Terminator Geometry Offset of each triangle's object (0 to 1; Blender's default
+        0.1): shadow rays leaving smooth-shaded triangles near grazing light start from the smooth surface
+        the vertex normals describe, lifted off the flat triangle (``terminator.terminator_lift``). None: 0.
     """
 
     triangles: np.ndarray
@@ -291,6 +295,7 @@ class Scene:
     shading_normals: np.ndarray | None = None
     corner_uvs: np.ndarray | None = None
     textures: list = field(default_factory=list)
+    terminator_offset: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.triangles = _as_float_array("triangles", self.triangles, (3, 3)) if len(np.asarray(self.triangles)) \
@@ -301,6 +306,8 @@ class Scene:
             self.shading_normals = _as_float_array("shading normals", self.shading_normals, (3, 3))
         if self.corner_uvs is not None:
             self.corner_uvs = _as_float_array("corner UVs", self.corner_uvs, (3, 2))
+        if self.terminator_offset is not None:
+            self.terminator_offset = np.asarray(self.terminator_offset, dtype=np.float64).reshape(-1)
 
     # -- validation ----------------------------------------------------------------------------------
     def validated(self, progress: Progress | None = None) -> "Scene":
@@ -349,6 +356,13 @@ class Scene:
             if shading_normals.shape != triangles.shape:
                 raise ValueError(f"shading normals have shape {shading_normals.shape}, triangles {triangles.shape}")
             _require_finite("shading normals", shading_normals)
+        terminator_offset = self.terminator_offset
+        if terminator_offset is not None:
+            if len(terminator_offset) != len(triangles):
+                raise ValueError(f"terminator_offset has {len(terminator_offset)} entries for {len(triangles)} "
+                                 "triangles")
+            _require_finite("shadow terminator offsets", terminator_offset)
+            terminator_offset = np.clip(terminator_offset, 0.0, 1.0)
 
         # Zero-area triangles can be hit by no ray and block nothing; drop them (scale-relative test).
         cross = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
@@ -364,6 +378,8 @@ class Scene:
                 shading_normals = shading_normals[keep]
             if corner_uvs is not None:
                 corner_uvs = corner_uvs[keep]
+            if terminator_offset is not None:
+                terminator_offset = terminator_offset[keep]
 
         lights = _validated_lights(self.lights, progress)
         if corner_uvs is not None:
@@ -372,7 +388,7 @@ class Scene:
         parameters["metallic"] = np.clip(parameters["metallic"], 0.0, 1.0)
         parameters["roughness"] = np.clip(parameters["roughness"], 0.0, 1.0)
         return Scene(triangles, material_index, Materials(**parameters), lights, self.camera,
-                     self.background, shading_normals, corner_uvs, list(self.textures))
+                     self.background, shading_normals, corner_uvs, list(self.textures), terminator_offset)
 
     # -- files ---------------------------------------------------------------------------------------
     def save_npz(self, path) -> None:
@@ -392,6 +408,8 @@ class Scene:
             arrays["shading_normals"] = self.shading_normals
         if self.corner_uvs is not None:
             arrays["corner_uvs"] = self.corner_uvs
+        if self.terminator_offset is not None:
+            arrays["terminator_offset"] = self.terminator_offset
         for index, texture in enumerate(self.textures):
             arrays[f"texture_{index}_texels"] = texture.texels
             arrays[f"texture_{index}_options"] = np.array([str(int(texture.srgb)), texture.interpolation,
@@ -432,7 +450,8 @@ class Scene:
                        lights, camera,
                        np.array(data["background"]) if "background" in data else np.zeros(3),
                        np.array(data["shading_normals"]) if "shading_normals" in data else None,
-                       np.array(data["corner_uvs"]) if "corner_uvs" in data else None, textures)
+                       np.array(data["corner_uvs"]) if "corner_uvs" in data else None, textures,
+                       np.array(data["terminator_offset"]) if "terminator_offset" in data else None)
 
 
 def _validated_lights(lights: Lights, progress: Progress) -> Lights:

@@ -46,8 +46,8 @@ from .detection import (HULL_BASE, HULL_BOX_HIGH, HULL_BOX_LOW, HULL_EPS, HULL_H
                         HULL_SIDE_NORMAL, HULL_SIDE_OFFSET, HULL_SIDE_VALID, HULL_TOWARD, HULL_WIDTH, compile_detection,
                         detect_arcs)
 from .blockers import _rank_within, _unique_points
-from .geometry import PLANE_EPS, LightFrames, ReceiverLight, clip_by_lines, compile_geometry, cross3, trim
-from .illumination import _pad_to
+from .geometry import PLANE_EPS, LightFrames, ReceiverLight, clip_by_lines, compile_geometry, cross3, pad_to, trim
+from .terminator import compile_terminator
 
 # Edge records per leaf of the edge tree.
 LEAF_EDGES = 32
@@ -636,7 +636,7 @@ def compile_kernels() -> bool:
                        np.zeros(1, np.int64), np.zeros((1, 3, 3)), np.zeros(1, np.int64), np.zeros(1, np.uint64))
     kernels = (detection_module._detect, arcs_module._arcs_in_cells, arrangement_module._fans,
                arrangement_module._jumps, _cone_planes, _bounding_cones, _reference_points, _hull_rows,
-               _silhouette_lights, *compile_geometry())
+               _silhouette_lights, *compile_geometry(), *compile_terminator())
     return any(kernel.stats.cache_misses for kernel in kernels)
 
 
@@ -725,7 +725,7 @@ def _directions_to_uv(couples: ReceiverLight, frames: LightFrames, couple: np.nd
 
 
 def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, couples: ReceiverLight,
-                      couple_pixel: np.ndarray, stats: dict):
+                      couple_pixel: np.ndarray, stats: dict, origin_shift: np.ndarray | None = None):
     """The visible region of each couple of a batch as signed triangles in its light's plane, in chunks of
     couples of about ARC_CHUNK arcs (a generator: a chunk's terms are integrated before the next chunk is
     worked out, so memory follows the chunk). Every couple's terms lie in one chunk.
@@ -736,6 +736,8 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
     stats : dict          counters to add to: tree nodes visited, edge candidates tested exactly, arcs,
                           reference depth rays, inconsistent couples, cells, most arcs of a couple; and
                           "arcs_of_couple" (Nc,) int64, filled in.
+    origin_shift : (Nc, 3) float64 or None   where the light is seen from, relative to each receiver
+                          (``terminator_couples``); the terms are integrated from the receiver.
 
     Yields
     ------
@@ -750,6 +752,12 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
         return
     position = surface.position[couple_pixel]
     own = surface.index_triangle[couple_pixel]
+    if origin_shift is not None:
+        couples = couples.moved(frames, origin_shift)
+        position = position + origin_shift
+        # From a lifted origin the receiver's own triangle is an occluder like any other: it can only hide
+        # the light below its plane, as Cycles' shadow rays meet it there (it skips it above).
+        own = np.where((origin_shift != 0).any(axis=1), -1, own)
     light_dirs = couples.directions(frames)
     cone, cone_valid = cone_of_light(light_dirs, couples.count)
     bound = bounding_cone(couples, frames)
@@ -922,7 +930,7 @@ def _regions(couples: ReceiverLight, frames: LightFrames, arcs: Arcs, arcs_of: n
         kept_polygons.append(trim(polygon[keep], polygon_count[keep]))
         kept_counts.append(polygon_count[keep])
     cell_width = max([p.shape[1] for p in kept_polygons] + [3])
-    cell_uv = np.concatenate([_pad_to(p, cell_width) for p in kept_polygons]) if kept_polygons else \
+    cell_uv = np.concatenate([pad_to(p, cell_width) for p in kept_polygons]) if kept_polygons else \
         np.zeros((0, cell_width, 2))
     cell_count = np.concatenate(kept_counts) if kept_counts else np.zeros(0, np.int64)
     cell_region = np.full(len(owner), -1, np.int64)
@@ -958,7 +966,7 @@ def _regions(couples: ReceiverLight, frames: LightFrames, arcs: Arcs, arcs_of: n
     region_arcs = Arcs.concat([kept, in_cells])
     region_arcs = region_arcs.take(np.argsort(region_arcs.couple, kind="stable"))
     width = max(couples.uv.shape[1], cell_uv.shape[1])
-    region_uv = np.concatenate([_pad_to(couples.uv[light_couples], width), _pad_to(cell_uv, width)])
+    region_uv = np.concatenate([pad_to(couples.uv[light_couples], width), pad_to(cell_uv, width)])
     return (np.concatenate([light_couples, cell_couple]), region_uv,
             np.concatenate([couples.count[light_couples], cell_count]), region_arcs,
             np.concatenate([reference_uv[light_couples], cell_ref_uv]))

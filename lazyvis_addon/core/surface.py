@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .scene import Scene
+from .terminator import terminator_lift
 from .texture import interpolate_corner_attribute
 
 # Shadow-ray origins move off the surface by this many units of the hit point's coordinate magnitude
@@ -32,6 +33,11 @@ class SurfacePoints:
     offset : (N,) float64             shadow-ray origin offset along the geometric normal (world units).
     material : (N,) int64             row of ``scene.materials``, -1 where nothing is hit.
     view : (N, 3) float64             unit direction from the point towards the camera (ω_o).
+    lift : (N, 3) float64             where Cycles' Shadow Terminator Geometry Offset moves shadow rays'
+                                      origin at full strength: onto the smooth surface the vertex normals
+                                      describe (``terminator.terminator_lift``; 0 on flat-shaded triangles).
+    lift_cutoff : (N,) float64        the object's offset setting: how grazing light must be for the lift
+                                      to apply (0: never; ``terminator.lift_amount``).
     """
 
     hit: np.ndarray
@@ -44,6 +50,8 @@ class SurfacePoints:
     offset: np.ndarray
     material: np.ndarray
     view: np.ndarray
+    lift: np.ndarray
+    lift_cutoff: np.ndarray
 
     def __len__(self) -> int:
         return len(self.hit)
@@ -51,7 +59,8 @@ class SurfacePoints:
     def take(self, index: np.ndarray) -> "SurfacePoints":
         return SurfacePoints(self.hit[index], self.position[index], self.geometric_normal[index],
                              self.shading_normal[index], self.index_triangle[index], self.albedo[index],
-                             self.emission[index], self.offset[index], self.material[index], self.view[index])
+                             self.emission[index], self.offset[index], self.material[index], self.view[index],
+                             self.lift[index], self.lift_cutoff[index])
 
 
 def scene_extent(scene: Scene) -> float:
@@ -110,8 +119,16 @@ def shade_hits(scene: Scene, ray_origins: np.ndarray, ray_directions: np.ndarray
     offset = OFFSET_RELATIVE * np.abs(position).max(axis=1) + OFFSET_SCENE * extent
     length = np.linalg.norm(ray_directions, axis=1, keepdims=True)
     view = -ray_directions / np.maximum(length, 1e-300)
+    lift = np.zeros((n, 3))
+    lift_cutoff = np.zeros(n)
+    if scene.terminator_offset is not None and scene.shading_normals is not None and hit.any():
+        lift_cutoff[hit] = scene.terminator_offset[tri[hit]]
+        lifted = np.flatnonzero(lift_cutoff > 0)
+        if len(lifted):
+            lift[lifted] = terminator_lift(scene.triangles[tri[lifted]], scene.shading_normals[tri[lifted]],
+                                           u[lifted], v[lifted], geometric[lifted])
     return SurfacePoints(hit, position, geometric, shading, np.where(hit, index_triangle, -1), albedo, emission,
-                         offset, material_row, view)
+                         offset, material_row, view, lift, lift_cutoff)
 
 
 def shadow_rays(surface: SurfacePoints, pixel: np.ndarray, direction: np.ndarray, pdf: np.ndarray,

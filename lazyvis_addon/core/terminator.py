@@ -1,0 +1,324 @@
+"""Cycles' Shadow Terminator Geometry Offset: shadow rays of smooth-shaded triangles leave from the smooth
+surface their vertex normals describe, not from the flat triangle.
+
+A coarse smooth-shaded mesh shades by its interpolated normals but casts shadows by its flat triangles, so
+near the terminator (light grazing the surface) a triangle's neighbours hide the light from points that
+the shading normal says are lit: the blocky shadow line of low-poly spheres. Cycles lifts each shadow
+ray's origin, by an amount that grows as the ray's direction grazes the surface, onto a parabolic patch
+through the triangle's corners (Hanika, *Hacking the Shadow Terminator*, Ray Tracing Gems II, 2021).
+Blender gives every object this offset (Object > Shading > Shadow Terminator > Geometry Offset, 0.1
+by default), so a user's smooth meshes render with it.
+
+Here the lift of every visible point is worked out once (``terminator_lift``, at pass 1), and pass 2's
+couples whose light any of it reaches (``terminator_couples``) are seen from lifted origins: their light
+is cut into strips over which the amount changes little, each strip a couple of its own seen from the
+origin its mean amount gives. The rest of pass 2 is unchanged: a strip's arcs, depths and fans are a
+couple's, integrated from the receiver itself.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .geometry import LightFrames, ReceiverLight, clip_by_lines, pad_to, receiver_light, trim
+
+
+def terminator_lift(corners: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.ndarray,
+                    geometric_normal: np.ndarray) -> np.ndarray:
+    """The offset (N, 3) from a point of a flat triangle to the smooth surface its vertex normals describe,
+    as Cycles' Shadow Terminator Geometry Offset computes it (Hanika, *Hacking the Shadow Terminator*,
+    Ray Tracing Gems II, 2021): a parabolic patch through the corners that meets the vertex normals,
+    bounded by the tangent planes at the corners, along the interpolated (not normalised) vertex normal.
+
+    Parameters
+    ----------
+    corners, normals : (N, 3, 3)     the triangle's vertices and unit vertex normals (world space).
+    u, v : (N,)                      barycentrics: the point is (1 - u - v) corner 0 + u corner 1 + v corner 2.
+    geometric_normal : (N, 3)        unit, on the side the light is seen from (the lift points there).
+    """
+    weights = np.stack([1.0 - u - v, u, v], axis=1)                                   # (N, 3)
+    point = np.einsum("nc,nck->nk", weights, corners)
+    normal = np.einsum("nc,nck->nk", weights, normals)
+    w0, w1 = weights[:, 0], weights[:, 1]
+    V0, V1, V2 = corners[:, 0], corners[:, 1], corners[:, 2]
+    N0, N1, N2 = normals[:, 0], normals[:, 1], normals[:, 2]
+
+    def dot(a, b):
+        return np.einsum("nk,nk->n", a, b)
+
+    a, b, c = dot(N2 - N0, V0 - V2), dot(N2 - N1, V1 - V2), dot(N1 - N0, V1 - V0)
+    height = a * w0 * (w0 - 1.0) + (a + b + c) * w0 * w1 + b * w1 * (w1 - 1.0)
+    front = dot(normal, geometric_normal) > 0
+    sign = np.where(front, 1.0, -1.0)  # the tangent planes' envelope on the side the normals point to
+    envelope = np.full(len(u), np.inf)
+    for k in range(3):  # the three corners
+        others = [corners[:, j] for j in range(3) if j != k]
+        reach = np.maximum(np.maximum(sign * dot(others[0] - corners[:, k], normals[:, k]),
+                                      sign * dot(others[1] - corners[:, k], normals[:, k])), 0.0)
+        envelope = np.minimum(envelope, np.maximum(sign * dot(corners[:, k] - point, normals[:, k]) + reach, 0.0))
+    height = np.where(front, np.maximum(envelope, 0.5 * height), np.minimum(-envelope, 0.5 * height))
+    return normal * height[:, None]
+
+
+def lift_amount(cutoff: np.ndarray, shading_normal: np.ndarray, geometric_normal: np.ndarray,
+                direction: np.ndarray) -> np.ndarray:
+    """How much of ``SurfacePoints.lift`` Cycles applies to a shadow ray leaving towards unit ``direction``
+    (N, 3), (N,) in 0 .. 1: all of it where the light grazes the surface (geometric and shading normals'
+    cosines with the ray summing to less than the cutoff), none where either cosine reaches twice it."""
+    shading_cos = np.abs(np.einsum("nk,nk->n", shading_normal, direction))
+    geometric_cos = np.einsum("nk,nk->n", geometric_normal, direction)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        amount = np.where(shading_cos < cutoff, np.clip(2.0 - (geometric_cos + shading_cos) / cutoff, 0.0, 1.0),
+                          np.clip(1.0 - geometric_cos / cutoff, 0.0, 1.0))
+    return np.where(cutoff > 0, amount, 0.0)
+
+
+# A moved couple's light is cut into strips across which the offset's amount changes by at most this
+# much, each seen from its own origin, at most TERMINATOR_STRIPS of them.
+TERMINATOR_STEP = 0.25
+TERMINATOR_STRIPS = 4
+
+
+def terminator_couples(surface, frames: LightFrames, couples: ReceiverLight, couple_pixel: np.ndarray,
+                       lights: np.ndarray) -> tuple[ReceiverLight, np.ndarray, np.ndarray | None]:
+    """Cycles' Shadow Terminator Geometry Offset: a shadow ray leaving a smooth-shaded triangle towards
+    grazing light starts from the smooth surface its vertex normals describe (``surface.SurfacePoints.lift``),
+    moved by an amount that grows as its direction grazes (``lift_amount``).
+
+    From a moved origin the light is seen wherever the shading normal sees it (Cycles' rays below the
+    triangle's own plane meet the triangle itself, or, lifted, pass it), so a (point, light) couple whose
+    light needs any offset is set up again with its light clipped to the shading horizon alone (a light
+    wholly below the triangle's plane may come back) and its own triangle joins the occluders
+    (``silhouette_pieces``). Its light is cut into strips across the direction in which the amount
+    changes (fitted over the light's vertices), by steps of TERMINATOR_STEP, each strip seen from the
+    origin its mean amount gives: the pieces of a couple's strips add up to its light's.
+
+    Parameters: the batch's ``couples`` and ``couple_pixel`` (``couples_for``) of the lights ``lights``
+    (L,) bool. Returns the couples to work out and integrate (each strip a couple of its own), their
+    pixels, and their origins' shifts (Nc', 3) float64, or None where nothing moves.
+    """
+    # Points whose lift is 0 (flat-shaded, or a triangle's corner) see what they saw.
+    points = np.flatnonzero(surface.hit & (surface.lift_cutoff > 0) & (surface.lift != 0).any(axis=1))
+    light_ids = np.flatnonzero(lights)
+    if len(points) == 0 or len(light_ids) == 0:
+        return couples, couple_pixel, None
+    grazing = grazing_couples(surface.position[points], surface.geometric_normal[points], surface.lift_cutoff[points],
+                              light_ids, frames)
+    point_row, light_row = np.nonzero(grazing)
+    if len(point_row) == 0:
+        return couples, couple_pixel, None
+    pixel = points[point_row]
+    shading, geometric, cutoff = (surface.shading_normal[pixel], surface.geometric_normal[pixel],
+                                  surface.lift_cutoff[pixel])
+    wide = receiver_light(surface.position[pixel], shading, shading, light_ids[light_row], frames)
+    amount = _lift_at(wide, frames, cutoff, shading, geometric, wide.uv)
+    real = np.arange(wide.uv.shape[1])[None, :] < wide.count[:, None]
+    moving = (wide.count >= 3) & (np.where(real, amount, 0.0).max(axis=1) > 0)
+    if not moving.any():
+        return couples, couple_pixel, None
+    pixel, wide, real = pixel[moving], wide.take(moving), real[moving]
+    shading, geometric, cutoff = shading[moving], geometric[moving], cutoff[moving]
+    # The amount before its clamp to 0 .. 1, fitted over the light's vertices by a plane in (u, v): it
+    # grows along ``axis`` by ``gradient`` per unit of u . axis.
+    raw = np.where(real, _lift_at(wide, frames, cutoff, shading, geometric, wide.uv, clamped=False), 0.0)
+    centre = np.where(real[..., None], wide.uv, 0.0).sum(axis=1) / wide.count[:, None]
+    offset = np.where(real[..., None], wide.uv - centre[:, None], 0.0)
+    mean_raw = raw.sum(axis=1) / wide.count
+    moment = np.einsum("nvi,nvj->nij", offset, offset) + 1e-30 * np.eye(2)
+    slope = np.linalg.solve(moment, np.einsum("nvi,nv->ni", offset, np.where(real, raw - mean_raw[:, None], 0.0))
+                            [..., None])[..., 0]
+    gradient = np.linalg.norm(slope, axis=1)
+    flat = ~(gradient > 1e-12)
+    axis = np.where(flat[:, None], (1.0, 0.0), slope / np.where(flat, 1.0, gradient)[:, None])
+    along = np.einsum("nvk,nk->nv", wide.uv, axis)
+    start = np.where(real, along, np.inf).min(axis=1)
+    end = np.where(real, along, -np.inf).max(axis=1)
+    # Strips: one where the fit takes no lift, one where it takes all of it, and between them strips
+    # over which it changes by TERMINATOR_STEP (at most TERMINATOR_STRIPS of them); each strip is then
+    # seen from the origin its vertices' mean amount gives.
+    centre_along = np.einsum("nk,nk->n", centre, axis)
+    safe = np.where(flat, 1.0, gradient)
+    low_level = np.where(flat, start, np.clip(centre_along - mean_raw / safe, start, end))
+    high_level = np.where(flat, end, np.clip(centre_along + (1.0 - mean_raw) / safe, start, end))
+    middle = np.where(high_level > low_level,
+                      np.clip(np.ceil((high_level - low_level) * np.where(flat, 0.0, gradient) / TERMINATOR_STEP), 1,
+                              TERMINATOR_STRIPS), 0).astype(np.int64)
+    below = (low_level > start).astype(np.int64)
+    above = (high_level < end).astype(np.int64)
+    strips = below + middle + above
+    owner = np.repeat(np.arange(len(pixel)), strips)
+    index = np.arange(int(strips.sum())) - np.repeat(np.cumsum(strips) - strips, strips)
+    k, n = index - below[owner], np.maximum(middle[owner], 1)
+    lo, hi = low_level[owner], high_level[owner]
+    low = np.where(k < 0, start[owner], np.where(k < middle[owner], lo + (hi - lo) * k / n, hi))
+    high = np.where(k < 0, lo, np.where(k < middle[owner], lo + (hi - lo) * (k + 1) / n, end[owner]))
+    normals = (cutoff, shading, geometric)
+    cut = _cut_strips(wide, frames, normals, axis, owner, low, high, index == 0, index == strips[owner] - 1)
+    # Where the fitted plane is far from the amount (a large light close by), a strip spans more: split
+    # those once more, evenly, by the spread of the amount between their vertices.
+    spread, low, high, first, last = cut[4:]
+    pieces = np.where(spread > 2.0 * TERMINATOR_STEP, np.minimum(np.ceil(spread / TERMINATOR_STEP),
+                                                                 TERMINATOR_STRIPS), 1).astype(np.int64)
+    if (pieces > 1).any():
+        parent = np.repeat(np.arange(len(pieces)), pieces)
+        index = np.arange(int(pieces.sum())) - np.repeat(np.cumsum(pieces) - pieces, pieces)
+        lo, span, n = low[parent], high[parent] - low[parent], pieces[parent]
+        cut = _cut_strips(wide, frames, normals, axis, cut[0][parent], lo + span * index / n,
+                          lo + span * (index + 1) / n, first[parent] & (index == 0), last[parent] & (index == n - 1))
+    owner, strip_uv, strip_count, strip_amount = cut[:4]
+    strip = ReceiverLight(wide.light[owner], strip_uv, strip_count, wide.side[owner], wide.local[owner],
+                          wide.receiver_in_light[owner])
+    # The couples that stay, then the strips of those that move.
+    moved = np.zeros((len(surface), len(frames)), bool)
+    moved[pixel, wide.light] = True
+    stay = ~moved[couple_pixel, couples.light]
+    width = max(couples.uv.shape[1], strip_uv.shape[1])
+    merged = ReceiverLight(np.concatenate([couples.light[stay], strip.light]),
+                           np.concatenate([pad_to(couples.uv[stay], width), pad_to(strip_uv, width)]),
+                           np.concatenate([couples.count[stay], strip_count]),
+                           np.concatenate([couples.side[stay], strip.side]),
+                           np.concatenate([couples.local[stay], strip.local]),
+                           np.concatenate([couples.receiver_in_light[stay], strip.receiver_in_light]))
+    merged_pixel = np.concatenate([couple_pixel[stay], pixel[owner]])
+    shift = np.zeros((len(merged_pixel), 3))
+    shift[int(stay.sum()):] = strip_amount[:, None] * surface.lift[pixel[owner]]
+    return merged, merged_pixel, shift
+
+
+def _cut_strips(wide: ReceiverLight, frames: LightFrames, normals: tuple, axis: np.ndarray, owner: np.ndarray,
+                low: np.ndarray, high: np.ndarray, first: np.ndarray, last: np.ndarray):
+    """The strips low <= u . axis <= high (no lower bound where ``first``, no upper where ``last``) of the
+    couples ``owner`` (S,) of ``wide``, clipped, empty ones dropped, as a tuple of (S',) arrays but for uv:
+    owner, uv (S', W, 2), count, the lift's amount over each strip (its mean over the strip's area, by
+    one point per fan triangle), the amount's spread between the strip's vertices, and the kept strips'
+    low, high, first and last. ``normals``: each couple's cutoff (N,), shading and geometric normals (N, 3)."""
+    sides = np.stack([np.concatenate([axis[owner], -low[:, None]], axis=1),
+                      np.concatenate([-axis[owner], high[:, None]], axis=1)], axis=1)
+    sides[first, 0] = (0.0, 0.0, 1.0)
+    sides[last, 1] = (0.0, 0.0, 1.0)
+    uv, count = clip_by_lines(wide.uv[owner], wide.count[owner], sides)
+    kept = count >= 3
+    owner, uv, count = owner[kept], trim(uv[kept], count[kept]), count[kept]
+    cutoff, shading, geometric = (np.ascontiguousarray(array[owner], np.float64) for array in normals)
+    amount, spread = np.empty(len(owner)), np.empty(len(owner))
+    _strip_amounts(np.ascontiguousarray(uv, np.float64), count, np.ascontiguousarray(wide.light[owner], np.int64),
+                   np.ascontiguousarray(wide.local[owner], np.float64), frames.tangent, frames.bitangent,
+                   frames.normal, cutoff, shading, geometric, amount, spread)
+    return owner, uv, count, amount, spread, low[kept], high[kept], first[kept], last[kept]
+
+
+def _lift_at(couples: ReceiverLight, frames: LightFrames, cutoff, shading, geometric, uv, clamped: bool = True
+             ) -> np.ndarray:
+    """``lift_amount`` (N, K) of the directions from each couple's receiver to points uv (N, K, 2) of its
+    light's plane (every column, padding included); with ``clamped`` False before its clamp to 0 .. 1 (a
+    continuous function: the two branches meet where the shading cosine equals the cutoff)."""
+    out = np.empty(uv.shape[:2])
+    _amounts(np.ascontiguousarray(uv, np.float64), np.ascontiguousarray(couples.light, np.int64),
+             np.ascontiguousarray(couples.local, np.float64), frames.tangent, frames.bitangent, frames.normal,
+             np.ascontiguousarray(cutoff, np.float64), np.ascontiguousarray(shading, np.float64),
+             np.ascontiguousarray(geometric, np.float64), clamped, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _amounts(uv, light, local, tangent, bitangent, normal, cutoff, shading, geometric, clamped, out):
+    """``lift_amount`` (``_raw_amount`` where not ``clamped``) of the direction from receiver n to each
+    point uv[n, k] of its light's plane, compiled: the (N, K, 3) directions are never stored."""
+    for n in range(uv.shape[0]):
+        l = light[n]
+        u0, v0, h = local[n, 0], local[n, 1], local[n, 2]
+        for k in range(uv.shape[1]):
+            raw = _raw_amount(uv[n, k, 0], uv[n, k, 1], l, u0, v0, h, tangent, bitangent, normal, cutoff[n],
+                              shading, geometric, n)
+            out[n, k] = min(max(raw, 0.0), 1.0) if clamped else raw
+
+@njit(cache=True, nogil=True, inline="always")
+def _raw_amount(u, v, l, u0, v0, h, tangent, bitangent, normal, c, shading, geometric, n):
+    """``lift_amount`` before its clamp to 0 .. 1 (0 where the cutoff is not positive) of the direction
+    from receiver n (at (u0, v0), height h in light l's frame) to the point (u, v) of the light's plane:
+    continuous, its two branches meet where the shading cosine equals the cutoff."""
+    du, dv = u - u0, v - v0
+    d0 = du * tangent[l, 0] + dv * bitangent[l, 0] - h * normal[l, 0]
+    d1 = du * tangent[l, 1] + dv * bitangent[l, 1] - h * normal[l, 1]
+    d2 = du * tangent[l, 2] + dv * bitangent[l, 2] - h * normal[l, 2]
+    length = max(np.sqrt(d0 * d0 + d1 * d1 + d2 * d2), 1e-300)
+    shading_cos = abs(d0 * shading[n, 0] + d1 * shading[n, 1] + d2 * shading[n, 2]) / length
+    geometric_cos = (d0 * geometric[n, 0] + d1 * geometric[n, 1] + d2 * geometric[n, 2]) / length
+    if not c > 0:
+        return 0.0
+    return 2.0 - (geometric_cos + shading_cos) / c if shading_cos < c else 1.0 - geometric_cos / c
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _amount_at(u, v, l, u0, v0, h, tangent, bitangent, normal, c, shading, geometric, n):
+    return min(max(_raw_amount(u, v, l, u0, v0, h, tangent, bitangent, normal, c, shading, geometric, n), 0.0), 1.0)
+
+
+@njit(cache=True, nogil=True)
+def _strip_amounts(uv, count, light, local, tangent, bitangent, normal, cutoff, shading, geometric, amount, spread):
+    """Per strip n (a convex polygon uv[n, :count[n]]): the lift's mean amount over its area, one point
+    (the centroid) per fan triangle, and the spread of the amount between its vertices. The amount is not
+    bounded by its vertices' (a cosine peaks inside a segment), hence the area rule."""
+    for n in range(len(count)):
+        l = light[n]
+        u0, v0, h, c = local[n, 0], local[n, 1], local[n, 2], cutoff[n]
+        low, high = np.inf, -np.inf
+        for k in range(count[n]):
+            a = _amount_at(uv[n, k, 0], uv[n, k, 1], l, u0, v0, h, tangent, bitangent, normal, c, shading,
+                           geometric, n)
+            low, high = min(low, a), max(high, a)
+        total, weighted = 0.0, 0.0
+        for k in range(1, count[n] - 1):
+            ax, ay = uv[n, k, 0] - uv[n, 0, 0], uv[n, k, 1] - uv[n, 0, 1]
+            bx, by = uv[n, k + 1, 0] - uv[n, 0, 0], uv[n, k + 1, 1] - uv[n, 0, 1]
+            area = 0.5 * abs(ax * by - ay * bx)
+            cu = (uv[n, 0, 0] + uv[n, k, 0] + uv[n, k + 1, 0]) / 3.0
+            cv = (uv[n, 0, 1] + uv[n, k, 1] + uv[n, k + 1, 1]) / 3.0
+            weighted += area * _amount_at(cu, cv, l, u0, v0, h, tangent, bitangent, normal, c, shading, geometric, n)
+            total += area
+        amount[n] = weighted / total if total > 0 else 0.5 * (low + high)
+        spread[n] = high - low
+
+
+def grazing_couples(position: np.ndarray, geometric_normal: np.ndarray, cutoff: np.ndarray, light_ids: np.ndarray,
+                    frames: LightFrames) -> np.ndarray:
+    """(P, L) bool: the points (positions and unit normals (P, 3), cutoffs (P,)) whose direction to some
+    point of light ``light_ids[l]`` may take a lift. ``lift_amount`` is 0 wherever the geometric cosine is
+    at least twice the cutoff, and those directions form a convex cone: a light polygon none of whose
+    vertices leaves that cone takes no lift anywhere. Most couples of a smooth mesh are such (the light
+    well above the surface), and skip the strips' set-up."""
+    out = np.zeros((len(position), len(light_ids)), np.bool_)
+    _grazing(np.ascontiguousarray(position, np.float64), np.ascontiguousarray(geometric_normal, np.float64),
+             np.ascontiguousarray(cutoff, np.float64), np.ascontiguousarray(light_ids, np.int64),
+             np.ascontiguousarray(frames.vertices, np.float64), np.ascontiguousarray(frames.vertex_count, np.int64),
+             out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _grazing(position, normal, cutoff, light_ids, vertices, vertex_count, out):
+    for p in range(len(position)):
+        limit = 2.0 * cutoff[p]
+        for j in range(len(light_ids)):
+            light = light_ids[j]
+            for v in range(vertex_count[light]):
+                d0 = vertices[light, v, 0] - position[p, 0]
+                d1 = vertices[light, v, 1] - position[p, 1]
+                d2 = vertices[light, v, 2] - position[p, 2]
+                cosine = d0 * normal[p, 0] + d1 * normal[p, 1] + d2 * normal[p, 2]
+                if cosine < limit * np.sqrt(d0 * d0 + d1 * d1 + d2 * d2):
+                    out[p, j] = True
+                    break
+
+
+def compile_terminator() -> list:
+    """Compile (or load from Numba's cache) this module's kernel; returns it."""
+    three = np.zeros((1, 3))
+    _grazing(three, three, np.zeros(1), np.zeros(1, np.int64), np.zeros((1, 3, 3)), np.zeros(1, np.int64),
+             np.zeros((1, 1), np.bool_))
+    _amounts(np.zeros((1, 3, 2)), np.zeros(1, np.int64), three, three, three, three, np.zeros(1), three, three,
+             True, np.empty((1, 3)))
+    _strip_amounts(np.zeros((1, 3, 2)), np.full(1, 3, np.int64), np.zeros(1, np.int64), three, three, three, three,
+                   np.zeros(1), three, three, np.empty(1), np.empty(1))
+    return [_grazing, _amounts, _strip_amounts]

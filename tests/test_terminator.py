@@ -1,0 +1,186 @@
+"""Cycles' Shadow Terminator Geometry Offset (``core.terminator``): the lift of a smooth-shaded point onto
+the smooth surface, the amount Cycles applies per direction, the cheap test that skips most couples, and
+the strips a lifted couple's light is cut into. Against Cycles itself: ``tests/blender/
+test_cycles_agreement.py::test_shadow_terminator_offset_lifts_suzannes_shadow_rays_as_in_cycles``."""
+
+import numpy as np
+import pytest
+
+from lazyvis_addon.core.geometry import light_frames, polygon_area_2d, receiver_light
+from lazyvis_addon.core.illumination import couples_for
+from lazyvis_addon.core.scene import Lights
+from lazyvis_addon.core.surface import SurfacePoints
+from lazyvis_addon.core.terminator import (TERMINATOR_STEP, _lift_at, grazing_couples, lift_amount,
+                                           terminator_couples, terminator_lift)
+
+
+def sphere_face(radius=1.0, spread=0.2):
+    """A triangle inscribed in a sphere (3, 3), its corners ``spread`` radians apart about the pole, and
+    their radial unit normals (3, 3): the smooth surface the normals describe is the sphere, which bulges
+    above the flat face."""
+    azimuth = np.radians([0.0, 120.0, 240.0])
+    corners = np.stack([np.sin(spread) * np.cos(azimuth), np.sin(spread) * np.sin(azimuth),
+                        np.full(3, np.cos(spread))], axis=1)
+    return radius * corners, corners.copy()
+
+
+def face_normal(corners):
+    n = np.cross(corners[1] - corners[0], corners[2] - corners[0])
+    return n / np.linalg.norm(n)
+
+
+def test_a_flat_triangle_and_the_corners_of_a_curved_one_are_not_lifted():
+    corners, normals = sphere_face()
+    flat = np.repeat(face_normal(corners)[None], 3, axis=0)
+    u, v = np.array([0.2, 0.3, 0.0, 1.0, 0.0]), np.array([0.5, 0.1, 0.0, 0.0, 1.0])
+    n = len(u)
+    geometric = np.repeat(face_normal(corners)[None], n, axis=0)
+    lift_flat = terminator_lift(np.repeat(corners[None], n, 0), np.repeat(flat[None], n, 0), u, v, geometric)
+    np.testing.assert_allclose(lift_flat, 0.0, atol=1e-15)
+    lift = terminator_lift(np.repeat(corners[None], n, 0), np.repeat(normals[None], n, 0), u, v, geometric)
+    np.testing.assert_allclose(lift[2:], 0.0, atol=1e-15)  # the corners lie on the smooth surface
+    assert (np.linalg.norm(lift[:2], axis=1) > 1e-3).all()
+
+
+def test_the_lift_at_a_sphere_faces_centroid_is_the_tangent_planes_envelope():
+    """Cycles lifts a point to the lowest of the corners' tangent planes (its "local linear envelope")
+    when that lies above half the parabolic patch: at the centroid of a triangle inscribed in a sphere of
+    radius R, corners s radians from the pole, that is R sin^2 s along the interpolated, unnormalised
+    normal (0, 0, cos s): above the sphere itself (R (1 - cos s) over the centroid), as Cycles means it."""
+    radius, spread = 2.0, 0.2
+    corners, normals = sphere_face(radius, spread)
+    geometric = face_normal(corners)
+    third = np.array([1.0 / 3.0])
+    lift = terminator_lift(corners[None], normals[None], third, third, geometric[None])[0]
+    np.testing.assert_allclose(lift, [0.0, 0.0, np.cos(spread) * radius * np.sin(spread) ** 2], atol=1e-14)
+    assert lift[2] > radius * (1 - np.cos(spread))
+
+
+def test_the_amount_is_cycles_clamped_ramp_and_continuous():
+    cutoff = np.full(5, 0.1)
+    normal = np.tile([0.0, 0.0, 1.0], (5, 1))
+    # straight up, just above the cutoff, grazing, below the plane, at the cutoff's twice
+    angles = np.radians([90.0, 10.0, 0.0, -10.0, np.degrees(np.arcsin(0.2))])
+    direction = np.stack([np.cos(angles), np.zeros(5), np.sin(angles)], axis=1)
+    amount = lift_amount(cutoff, normal, normal, direction)
+    cos = np.sin(angles)
+    expected = [0.0, np.clip(1 - cos[1] / 0.1, 0, 1), 1.0, 1.0, 0.0]
+    np.testing.assert_allclose(amount, expected, atol=1e-12)
+    # Where the shading cosine crosses the cutoff the two branches meet.
+    tilt = np.radians(3.0)
+    shading = np.tile([np.sin(tilt), 0.0, np.cos(tilt)], (2, 1))
+    geometric = np.tile([0.0, 0.0, 1.0], (2, 1))
+    around = np.arcsin(0.1) - tilt
+    d = np.stack([np.cos([around - 1e-9, around + 1e-9]) * [1, 1], [0, 0], np.sin([around - 1e-9, around + 1e-9])], 1)
+    d = np.stack([-d[:, 0], d[:, 1], d[:, 2]], axis=1) if np.dot(shading[0], d[0]) < 0 else d
+    pair = lift_amount(np.full(2, 0.1), shading, geometric, d / np.linalg.norm(d, axis=1, keepdims=True))
+    assert abs(pair[0] - pair[1]) < 1e-6
+
+
+def square_light(z=1.0, size=1.0, x=0.0):
+    h = size / 2
+    return [(x - h, -h, z), (x - h, h, z), (x + h, h, z), (x + h, -h, z)]  # facing down
+
+
+def test_the_compiled_amount_equals_the_formula_and_the_quick_test_never_drops_a_lifted_couple(np_rng):
+    """``_lift_at`` against ``lift_amount`` at random points of random lights, and ``grazing_couples``:
+    wherever the amount is positive at some point of a light, its couple is kept."""
+    frames = light_frames(Lights.from_polygons([square_light(1.0, 1.0, 0.0), square_light(0.3, 2.0, 1.5)],
+                                               [(1.0, 1.0, 1.0)] * 2))
+    n = 400
+    position = np.column_stack([np_rng.uniform(-1, 1, n), np_rng.uniform(-1, 1, n), np.zeros(n)])
+    geometric = np_rng.normal(size=(n, 3)) * [0.3, 0.3, 1.0]
+    geometric /= np.linalg.norm(geometric, axis=1, keepdims=True)
+    shading = geometric + np_rng.normal(scale=0.1, size=(n, 3))
+    shading /= np.linalg.norm(shading, axis=1, keepdims=True)
+    cutoff = np_rng.uniform(0.05, 0.3, n)
+    light = np_rng.integers(0, 2, n)
+    setup = receiver_light(position, shading, shading, light, frames)
+    weights = np_rng.dirichlet(np.ones(4), size=(n, 64))                        # points inside each light
+    uv = np.einsum("nsv,nvk->nsk", weights, frames.uv[light, :4])
+    compiled = _lift_at(setup, frames, cutoff, shading, geometric, uv)
+    directions = setup.directions(frames, uv)
+    directions /= np.linalg.norm(directions, axis=2, keepdims=True)
+    formula = lift_amount(np.repeat(cutoff, 64), np.repeat(shading, 64, 0), np.repeat(geometric, 64, 0),
+                          directions.reshape(-1, 3)).reshape(n, 64)
+    np.testing.assert_allclose(compiled, formula, atol=1e-12)
+    grazing = grazing_couples(position, geometric, cutoff, np.arange(2), frames)[np.arange(n), light]
+    lifted = (formula > 0).any(axis=1)
+    assert lifted.sum() > 50 and (~grazing).sum() > 50
+    assert not (lifted & ~grazing).any()
+
+
+def smooth_points(n, rng):
+    """Points on a floor whose shading normals lean by up to 30 degrees, lifted 1 mm: most see the
+    light above them at grazing angles on one side."""
+    position = np.column_stack([rng.uniform(-2, 2, n), rng.uniform(-2, 2, n), np.zeros(n)])
+    geometric = np.tile([0.0, 0.0, 1.0], (n, 1))
+    tilt = np.radians(rng.uniform(0, 30, n))
+    azimuth = rng.uniform(0, 2 * np.pi, n)
+    shading = np.column_stack([np.sin(tilt) * np.cos(azimuth), np.sin(tilt) * np.sin(azimuth), np.cos(tilt)])
+    zeros = np.zeros((n, 3))
+    return SurfacePoints(np.ones(n, bool), position, geometric, shading, np.arange(n), zeros + 0.5, zeros,
+                         np.full(n, 1e-6), np.zeros(n, np.int64), geometric.copy(), 1e-3 * shading,
+                         np.full(n, 0.1))
+
+
+def test_strips_tile_each_lifted_couples_light_and_carry_its_mean_amount(np_rng):
+    """Each couple that takes a lift anywhere is replaced by strips of its light clipped to the shading
+    horizon: their areas add up to that polygon's, and their amounts weighted by area give the mean
+    amount over it (by quadrature) within TERMINATOR_STEP. The other couples stay as they were."""
+    frames = light_frames(Lights.from_polygons([square_light(0.3, 3.0, 0.0)], [(1.0, 1.0, 1.0)]))
+    surface = smooth_points(300, np_rng)
+    couples, couple_pixel = couples_for(surface, frames)
+    merged, merged_pixel, shift = terminator_couples(surface, frames, couples, couple_pixel, np.ones(1, bool))
+    assert shift is not None
+    moved_pixels = np.unique(merged_pixel[np.linalg.norm(shift, axis=1) > 0])
+    assert 30 < len(moved_pixels) < 300
+    lifts = np.linalg.norm(surface.lift, axis=1)
+    amount = np.linalg.norm(shift, axis=1) / lifts[merged_pixel]
+    assert ((amount >= -1e-12) & (amount <= 1 + 1e-12)).all()
+    area = polygon_area_2d(merged.uv)
+    wide = receiver_light(surface.position, surface.shading_normal, surface.shading_normal,
+                          np.zeros(len(surface), np.int64), frames)
+    wide_area = polygon_area_2d(wide.uv)
+    # Quadrature of the amount over each point's wide polygon (a fine grid of the light's square).
+    grid = (np.arange(200) + 0.5) / 200
+    gu, gv = np.meshgrid(grid, grid)
+    low, high = frames.uv[0, :4].min(axis=0), frames.uv[0, :4].max(axis=0)
+    points = np.stack([low[0] + gu.ravel() * (high[0] - low[0]), low[1] + gv.ravel() * (high[1] - low[1])], 1)
+    strips_of = {}
+    for index, pixel in enumerate(merged_pixel):  # the test's bookkeeping: a few hundred couples
+        strips_of.setdefault(pixel, []).append(index)
+    checked = 0
+    for pixel in moved_pixels[:40]:  # forty couples, each against its own quadrature
+        rows = strips_of[pixel]
+        np.testing.assert_allclose(area[rows].sum(), wide_area[pixel], rtol=1e-9)
+        one = receiver_light(surface.position[[pixel]], surface.shading_normal[[pixel]],
+                             surface.shading_normal[[pixel]], np.zeros(1, np.int64), frames)
+        directions = one.directions(frames, points[None])[0]
+        inside = (directions @ surface.shading_normal[pixel]) > 0
+        values = _lift_at(one, frames, surface.lift_cutoff[[pixel]], surface.shading_normal[[pixel]],
+                          surface.geometric_normal[[pixel]], points[None])[0]
+        cell = (high - low).prod() / len(points)
+        exact_mean = (values * inside).sum() * cell / wide_area[pixel]
+        strip_mean = (amount[rows] * area[rows]).sum() / area[rows].sum()
+        assert abs(strip_mean - exact_mean) < TERMINATOR_STEP, (pixel, strip_mean, exact_mean)
+        checked += 1
+    assert checked == 40
+    # Every other point keeps its couple as it was, or (where the amount is positive at some point of the
+    # light but averages to 0 over each strip) is cut into strips that still tile its light.
+    original_area = polygon_area_2d(couples.uv)
+    for pixel in np.setdiff1d(np.arange(len(surface)), moved_pixels):  # a few hundred points
+        total = area[merged_pixel == pixel].sum()
+        expected = (wide_area[pixel], original_area[couple_pixel == pixel].sum())
+        assert min(abs(total - value) for value in expected) <= 1e-9 * max(expected), pixel
+
+
+@pytest.mark.parametrize("cutoff", [0.0, 0.1])
+def test_couples_without_a_lift_pass_through(cutoff, np_rng):
+    frames = light_frames(Lights.from_polygons([square_light(3.0, 0.5, 0.0)], [(1.0, 1.0, 1.0)]))
+    surface = smooth_points(50, np_rng)
+    surface.lift_cutoff[:] = cutoff
+    surface.shading_normal[:] = surface.geometric_normal  # the light straight above: no grazing
+    couples, couple_pixel = couples_for(surface, frames)
+    merged, merged_pixel, shift = terminator_couples(surface, frames, couples, couple_pixel, np.ones(1, bool))
+    assert shift is None and merged is couples and merged_pixel is couple_pixel
