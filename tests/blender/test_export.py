@@ -350,6 +350,30 @@ def test_no_smooth_faces_means_no_shading_normals(scene):
     assert exported.scene.shading_normals is None
 
 
+
+def test_shadow_terminator_geometry_offset_is_read_per_object(scene):
+    """Each smooth object's Shadow Terminator Geometry Offset (Blender's default 0.1) on its triangles,
+    0 on a flat object's (Cycles lifts only smooth-shaded faces); a Shading Offset is named as ignored."""
+    add_camera(scene)
+    bpy.ops.mesh.primitive_uv_sphere_add(segments=8, ring_count=4, location=(0.0, 0.0, 0.0))
+    bpy.ops.object.shade_smooth()
+    default_sphere = bpy.context.object
+    bpy.ops.mesh.primitive_uv_sphere_add(segments=8, ring_count=4, location=(4.0, 0.0, 0.0))
+    bpy.ops.object.shade_smooth()
+    bpy.context.object.shadow_terminator_geometry_offset = 0.35
+    bpy.context.object.shadow_terminator_shading_offset = 0.2
+    bpy.context.object.name = "Shifted"
+    bpy.ops.mesh.primitive_cube_add(location=(-4.0, 0.0, 0.0))
+    bpy.context.object.shadow_terminator_geometry_offset = 0.5  # flat: no lift whatever it says
+    exported, warnings = export(scene)
+    assert default_sphere.shadow_terminator_geometry_offset == pytest.approx(0.1)
+    centre_x = exported.scene.triangles.mean(axis=1)[:, 0]
+    offset = exported.scene.terminator_offset
+    np.testing.assert_allclose(offset[np.abs(centre_x) < 2], 0.1, rtol=1e-6)
+    np.testing.assert_allclose(offset[centre_x > 2], 0.35, rtol=1e-6)
+    np.testing.assert_array_equal(offset[centre_x < -2], 0.0)
+    assert [w for w in warnings if "Shading Offset" in w and "Shifted" in w]
+
 def test_nan_vertex_is_a_clear_error_naming_the_object(scene):
     add_camera(scene)
     bpy.ops.mesh.primitive_cube_add()
