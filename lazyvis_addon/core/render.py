@@ -12,9 +12,10 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from .antialias import (PILOT_SAMPLES, allocate_samples, covers_one_surface, cull_to_samples, foreign_samples,
-                        inherit_blockers, landing_pixels, lattice_pixels, pixel_coverage, pool_samples,
-                        refine_pixels, sample_rgba, settled_pixels, stratum_of, subpixel_samples, surface_strata)
+from .antialias import (PILOT_SAMPLES, allocate_samples, centre_suffices, covers_one_surface, cull_to_samples,
+                        foreign_samples, inherit_blockers, landing_pixels, lattice_pixels, pixel_coverage,
+                        pool_samples, refine_pixels, sample_rgba, settled_pixels, stratum_of, subpixel_samples,
+                        surface_strata)
 from .blockers import BlockerPolygons
 from .blocker_map import BlockerMap, build_blocker_map, flood_fill, reference_blocker_map
 from .camera import camera_rays, planar_depth, window_pixels
@@ -170,11 +171,17 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
     if settings.aa_samples > 1 and surface.hit.any():
         progress.begin_stage("Anti-aliasing")
         pixels, contrast = refine_pixels(scene, surface, radiance, (height, width), settings, tracer)
+        # Samples are allocated over every marked pixel (a pixel's share does not depend on which others
+        # need none). Under a filter far narrower than a pixel, an edge between centres rarely passes
+        # under it: camera rays tell which pixels see one triangle there, and those keep their centre.
+        counts = allocate_samples(contrast, settings.aa_samples)
+        alone = centre_suffices(scene, tracer, pixels, surface.index_triangle[pixels], settings, pixel_global)
+        pixels, contrast, counts = pixels[~alone], contrast[~alone], counts[~alone]
+        stats["aa_centre_pixels"] = int(alone.sum())
         stats["aa_pixels"] = len(pixels)
         if len(pixels):
             shading = (scene, tracer, extent, settings, pixel_global, frames, polygons, progress, stats,
                        (outer_map, outer, outer_surface) if lazy else None, verify, edges)
-            counts = allocate_samples(contrast, settings.aa_samples)
             covered = settings.aa_coverage_rays > 0
             # With coverage the pixel's centre, shaded already, is one of its samples.
             drawn = counts - 1 if covered else counts
