@@ -386,7 +386,7 @@ def test_shadow_terminator_offset_lifts_suzannes_shadow_rays_as_in_cycles(addon,
     the floor (flat: no lift) still within it; with the offset her error falls more than tenfold (the
     whole image agrees within the noise: ``test_lazyvis_matches_cycles_within_its_noise``)."""
     import lazyvis_addon.blender.export as export
-    case = agreement_scenes.CASES_BY_NAME["suzanne_terminator_offset"]
+    case = agreement_scenes.CASES_BY_NAME["suzanne_48px"]
     first, second = references(case)
     edges, at_emitters, normal = excluded_pixels(case, tmp_path)
     excluded = edges | at_emitters
