@@ -5,12 +5,14 @@ somewhere near a group of receivers and may cross the light. Each is tested here
 the jump (``jump_at``: the sum over the edge's faces of the side each face's third vertex lies on), then,
 for the few whose jump is not 0 (``arc_test``), the part in front of the light's plane, a quick rejection
 by the light's bounding quad and the exact range inside the light's cone. Those are the arcs.
-Heavy couples' arcs are then assigned to the cells of a grid over the light (``arcs_in_cells``).
+Heavy couples' arcs are then assigned to the cells of a grid over the light (``regions``).
 
 Millions of pairs of a few dozen flops each: compiled with Numba, called from detection's kernel.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
@@ -165,64 +167,6 @@ def _cone_range(a, b, cross, planes, valid, toward_x, toward_y, toward_z):
     return enter, leave, not degenerate
 
 
-def arcs_in_cells(start: np.ndarray, end: np.ndarray, normal: np.ndarray, toward: np.ndarray, box: np.ndarray,
-                  grid: np.ndarray, cell_slot: np.ndarray, cell_cone: np.ndarray, planes: np.ndarray,
-                  valid: np.ndarray):
-    """The (arc, cell) rows of heavy couples' arcs: each arc against the cells of the part of its couple's
-    grid that its (u, v) extent spans, kept where it crosses the cell's cone.
-
-    Parameters
-    ----------
-    start, end, normal : (S, 3) float64   the arcs (segments from the receiver; normal = start x end).
-    toward : (S, 3) float64    the direction each arc's cone opens towards (away from the receiver's side).
-    box : (S, 4) int64         i0, i1, j0, j1: the grid cells spanned (inclusive).
-    grid : (S,) int64          the grid's size g of the arc's couple; cell_slot : (S,) the index of the
-                               couple's cell (0, 0) in ``cell_cone`` (cell (i, j) is slot + i g + j).
-    cell_cone : (M,) int64     the cone (row of planes / valid) of each grid cell, -1 for an empty cell.
-
-    Returns arc (N,) int64, cone (N,) int64, enter, leave (N,) float64. Only kept rows are stored: a long
-    diagonal arc spans g x g cells of its box but crosses about 2 g of them.
-    """
-    def f64(a):
-        return np.ascontiguousarray(a, np.float64)
-
-    def i64(a):
-        return np.ascontiguousarray(a, np.int64)
-
-    arrays = (f64(start), f64(end), f64(normal), f64(toward), i64(box), i64(grid), i64(cell_slot), i64(cell_cone),
-              f64(planes), np.ascontiguousarray(valid, np.bool_))
-    capacity = max(1024, 4 * len(start))
-    while True:  # the rows outgrow their estimate: again with four times the room
-        arc, cone, enter, leave, complete = _arcs_in_cells(*arrays, capacity)
-        if complete:
-            return arc.copy(), cone.copy(), enter.copy(), leave.copy()  # not views of the larger buffers
-        capacity *= 4
-
-
-@njit(cache=True, nogil=True)
-def _arcs_in_cells(start, end, normal, toward, box, grid, cell_slot, cell_cone, planes, valid, capacity):
-    out_arc = np.empty(capacity, np.int64)
-    out_cone = np.empty(capacity, np.int64)
-    out_enter = np.empty(capacity)
-    out_leave = np.empty(capacity)
-    m = 0
-    for i in range(len(start)):
-        for ci in range(box[i, 0], box[i, 1] + 1):
-            for cj in range(box[i, 2], box[i, 3] + 1):
-                c = cell_cone[cell_slot[i] + ci * grid[i] + cj]
-                if c < 0:
-                    continue
-                enter, leave, ok = _cone_range(start[i], end[i], normal[i], planes[c], valid[c], toward[i, 0],
-                                               toward[i, 1], toward[i, 2])
-                if not ok:
-                    continue
-                if m == capacity:
-                    return out_arc, out_cone, out_enter, out_leave, False
-                out_arc[m], out_cone[m], out_enter[m], out_leave[m] = i, c, enter, leave
-                m += 1
-    return out_arc[:m], out_cone[:m], out_enter[:m], out_leave[:m], True
-
-
 @njit(cache=True, nogil=True)
 def _cross(a, b, out):
     out[0] = a[1] * b[2] - a[2] * b[1]
@@ -230,7 +174,82 @@ def _cross(a, b, out):
     out[2] = a[0] * b[1] - a[1] * b[0]
 
 
-def compile_cells() -> None:
-    """Compile ``_arcs_in_cells`` (or load it from Numba's cache) on a one-row input."""
-    f, i = np.zeros((1, 3)), np.zeros(1, np.int64)
-    _arcs_in_cells(f, f, f, f, np.zeros((1, 4), np.int64), i, i, i, np.zeros((1, 3, 3)), np.zeros((1, 3), np.bool_), 16)
+@dataclass
+class Arcs:
+    """The silhouette arcs crossing each couple's light, as segments relative to the receiver.
+
+    Attributes
+    ----------
+    couple : (S,) int64     couple of each arc (sorted).
+    start, end : (S, 3)     the edge's part in front of the light's plane, minus the receiver.
+    normal : (S, 3)         start x end: the plane through the receiver and the arc.
+    enter, leave : (S,)     the arc's parameter range inside the light's cone, 0 <= enter < leave <= 1.
+    jump : (S,) int64       change of D crossing the arc from the reference point's side to the other.
+    """
+
+    couple: np.ndarray
+    start: np.ndarray
+    end: np.ndarray
+    normal: np.ndarray
+    enter: np.ndarray
+    leave: np.ndarray
+    jump: np.ndarray
+
+    def take(self, index) -> "Arcs":
+        return Arcs(*(getattr(self, name)[index] for name in
+                      ("couple", "start", "end", "normal", "enter", "leave", "jump")))
+
+    @classmethod
+    def concat(cls, parts: list["Arcs"]) -> "Arcs":
+        return cls(*(np.concatenate([getattr(p, name) for p in parts]) for name in
+                     ("couple", "start", "end", "normal", "enter", "leave", "jump")))
+
+    @classmethod
+    def empty(cls) -> "Arcs":
+        return cls(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0),
+                   np.zeros(0), np.zeros(0, np.int64))
+
+
+def cone_of_light(directions: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Inward unit normals (N, V, 3) of the planes through the origin and each edge of convex polygons given
+    by directions (N, V, 3) (padded by repeating the last vertex), and their validity (N, V)."""
+    directions = np.ascontiguousarray(directions, np.float64)
+    planes = np.empty(directions.shape)
+    valid = np.empty(directions.shape[:2], np.bool_)
+    _cone_planes(directions, np.ascontiguousarray(count, np.int64), planes, valid)
+    return planes, valid
+
+
+# An edge whose end directions are closer than this (the sine of the angle between them) has no plane.
+DEGENERATE_EDGE = 1e-10
+
+
+@njit(cache=True, nogil=True)
+def _cone_planes(directions, count, planes, valid):
+    """Per polygon: the plane through vertex k and its successor (the last real vertex closes onto vertex
+    0), turned to face the polygon's centre, normalised; valid where k is a real vertex and the plane is
+    not degenerate."""
+    n_polygons, width = directions.shape[0], directions.shape[1]
+    for n in range(n_polygons):
+        last = max(count[n] - 1, 0)
+        c0, c1, c2 = 0.0, 0.0, 0.0
+        for k in range(width):
+            c0 += directions[n, k, 0]
+            c1 += directions[n, k, 1]
+            c2 += directions[n, k, 2]
+        for k in range(width):
+            j = 0 if k == last or k + 1 == width else k + 1
+            a0, a1, a2 = directions[n, k, 0], directions[n, k, 1], directions[n, k, 2]
+            b0, b1, b2 = directions[n, j, 0], directions[n, j, 1], directions[n, j, 2]
+            p0, p1, p2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+            if p0 * c0 + p1 * c1 + p2 * c2 < 0:
+                p0, p1, p2 = -p0, -p1, -p2
+            length = np.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
+            # An edge between two vertices one direction apart (a clipped polygon's repeated vertex) has a
+            # plane of rounding noise, of any orientation: it bounds nothing, its neighbours do.
+            if not length > DEGENERATE_EDGE * np.sqrt((a0 * a0 + a1 * a1 + a2 * a2) * (b0 * b0 + b1 * b1 + b2 * b2)):
+                planes[n, k, 0], planes[n, k, 1], planes[n, k, 2] = 0.0, 0.0, 0.0
+                valid[n, k] = False
+                continue
+            planes[n, k, 0], planes[n, k, 1], planes[n, k, 2] = p0 / length, p1 / length, p2 / length
+            valid[n, k] = k < count[n]

@@ -588,3 +588,29 @@ def compile_geometry() -> tuple:
     _clip_by_lines(np.zeros((1, 4, 2)), np.zeros(1, np.int64), np.zeros((1, 2, 3)), np.empty((1, 6, 2)),
                    np.empty(1, np.int64))
     return _irradiance_vectors, _projected_solid_angles_uv, _directions, _clip_by_lines
+
+
+# Weights of the light's vertices in the reference point: positive (R inside the convex light) and
+# irregular, so that R lies on no arc's plane in any regular arrangement.
+_REFERENCE_WEIGHTS = 1.0 + np.modf(np.arange(1, 257) * 0.6180339887498949 + 0.1234567)[0]
+
+
+def reference_points(uv: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """A generic interior point R of each convex polygon (N, V, 2) with ``count`` (N,) vertices, (N, 2): its
+    vertices' mean under irregular positive weights (``_REFERENCE_WEIGHTS``)."""
+    out = np.empty((len(count), 2))
+    _reference_points(np.ascontiguousarray(uv, np.float64), np.ascontiguousarray(count, np.int64),
+                      _REFERENCE_WEIGHTS, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _reference_points(uv, count, weights, out):
+    for n in range(len(count)):
+        total, u, v = 0.0, 0.0, 0.0
+        for k in range(count[n]):
+            total += weights[k]
+            u += weights[k] * uv[n, k, 0]
+            v += weights[k] * uv[n, k, 1]
+        total = max(total, 1e-300)
+        out[n, 0], out[n, 1] = u / total, v / total

@@ -40,13 +40,15 @@ import numpy as np
 from numba import njit
 
 from . import arcs as arcs_module, arrangement as arrangement_module, detection as detection_module
-from .arcs import arcs_in_cells, compile_cells
+from .arcs import Arcs, _cone_planes, cone_of_light
 from .arrangement import compile_arrangement, jumps_between, visible_fans
 from .detection import (HULL_BASE, HULL_BOX_HIGH, HULL_BOX_LOW, HULL_EPS, HULL_HEIGHT, HULL_HIGH, HULL_LOW,
                         HULL_SIDE_NORMAL, HULL_SIDE_OFFSET, HULL_SIDE_VALID, HULL_TOWARD, HULL_WIDTH, compile_detection,
                         detect_arcs)
 from .blockers import _rank_within, _unique_points
-from .geometry import PLANE_EPS, LightFrames, ReceiverLight, clip_by_lines, compile_geometry, cross3, pad_to, trim
+from .geometry import (_REFERENCE_WEIGHTS, PLANE_EPS, LightFrames, ReceiverLight, _reference_points,
+                       compile_geometry, cross3, reference_points, trim)
+from .regions import compile_regions, couple_regions
 from .terminator import compile_terminator
 
 # Edge records per leaf of the edge tree.
@@ -58,13 +60,6 @@ MAX_INCIDENCE = 4
 # are a silhouette nowhere in its box.
 GROUP_POINTS = 16
 SUB_POINTS = 4
-# A couple crossed by more arcs than this is cut into a grid of cells of about CELL_TARGET arcs each
-# (at most MAX_GRID x MAX_GRID): the arrangement costs the square of the arcs per region.
-CELL_ARCS = 48
-CELL_TARGET = 12
-MAX_GRID = 24
-# Cells clipped per array batch.
-CELL_BATCH = 1 << 15
 # Arcs per chunk of couples whose detection, regions, depths, arrangement and integrals are worked out
 # together (about 7 MB of arcs).
 ARC_CHUNK = 1 << 16
@@ -469,42 +464,6 @@ def _hull_rows(box_low, box_high, light, side, height, origin, tangent, bitangen
 # Arcs per couple
 # ------------------------------------------------------------------------------------------------------
 
-@dataclass
-class Arcs:
-    """The silhouette arcs crossing each couple's light, as segments relative to the receiver.
-
-    Attributes
-    ----------
-    couple : (S,) int64     couple of each arc (sorted).
-    start, end : (S, 3)     the edge's part in front of the light's plane, minus the receiver.
-    normal : (S, 3)         start x end: the plane through the receiver and the arc.
-    enter, leave : (S,)     the arc's parameter range inside the light's cone, 0 <= enter < leave <= 1.
-    jump : (S,) int64       change of D crossing the arc from the reference point's side to the other.
-    """
-
-    couple: np.ndarray
-    start: np.ndarray
-    end: np.ndarray
-    normal: np.ndarray
-    enter: np.ndarray
-    leave: np.ndarray
-    jump: np.ndarray
-
-    def take(self, index) -> "Arcs":
-        return Arcs(*(getattr(self, name)[index] for name in
-                      ("couple", "start", "end", "normal", "enter", "leave", "jump")))
-
-    @classmethod
-    def concat(cls, parts: list["Arcs"]) -> "Arcs":
-        return cls(*(np.concatenate([getattr(p, name) for p in parts]) for name in
-                     ("couple", "start", "end", "normal", "enter", "leave", "jump")))
-
-    @classmethod
-    def empty(cls) -> "Arcs":
-        return cls(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0),
-                   np.zeros(0), np.zeros(0, np.int64))
-
-
 def bounding_cone(couples: ReceiverLight, frames: LightFrames) -> np.ndarray:
     """Inward normals (Nc, 4, 3) of the cone from each receiver through the (u, v) bounding box of its
     clipped light: a cone holding the light's, for a quick test."""
@@ -531,42 +490,6 @@ def _bounding_cones(uv, count, light, local, tangent, bitangent, normal, out):
             for d in range(3):
                 corners[0, corner, d] = du * tangent[l, d] + dv * bitangent[l, d] - local[n, 2] * normal[l, d]
         _cone_planes(corners, four, out[n:n + 1], valid)
-
-
-def cone_of_light(directions: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Inward unit normals (N, V, 3) of the planes through the origin and each edge of convex polygons given
-    by directions (N, V, 3) (padded by repeating the last vertex), and their validity (N, V)."""
-    directions = np.ascontiguousarray(directions, np.float64)
-    planes = np.empty(directions.shape)
-    valid = np.empty(directions.shape[:2], np.bool_)
-    _cone_planes(directions, np.ascontiguousarray(count, np.int64), planes, valid)
-    return planes, valid
-
-
-@njit(cache=True, nogil=True)
-def _cone_planes(directions, count, planes, valid):
-    """Per polygon: the plane through vertex k and its successor (the last real vertex closes onto vertex
-    0), turned to face the polygon's centre, normalised; valid where k is a real vertex and the plane is
-    not degenerate."""
-    n_polygons, width = directions.shape[0], directions.shape[1]
-    for n in range(n_polygons):
-        last = max(count[n] - 1, 0)
-        c0, c1, c2 = 0.0, 0.0, 0.0
-        for k in range(width):
-            c0 += directions[n, k, 0]
-            c1 += directions[n, k, 1]
-            c2 += directions[n, k, 2]
-        for k in range(width):
-            j = 0 if k == last or k + 1 == width else k + 1
-            a0, a1, a2 = directions[n, k, 0], directions[n, k, 1], directions[n, k, 2]
-            b0, b1, b2 = directions[n, j, 0], directions[n, j, 1], directions[n, j, 2]
-            p0, p1, p2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
-            if p0 * c0 + p1 * c1 + p2 * c2 < 0:
-                p0, p1, p2 = -p0, -p1, -p2
-            length = max(np.sqrt(p0 * p0 + p1 * p1 + p2 * p2), 1e-300)
-            p0, p1, p2 = p0 / length, p1 / length, p2 / length
-            planes[n, k, 0], planes[n, k, 1], planes[n, k, 2] = p0, p1, p2
-            valid[n, k] = k < count[n] and p0 * p0 + p1 * p1 + p2 * p2 > 0
 
 
 # ------------------------------------------------------------------------------------------------------
@@ -612,18 +535,12 @@ def depth_counts(tracer, origin: np.ndarray, target: np.ndarray, own_triangle: n
 # The door: visible pieces of a batch of receivers
 # ------------------------------------------------------------------------------------------------------
 
-# Weights of the light's vertices in the reference point: positive (R inside the convex light) and
-# irregular, so that R lies on no arc's plane in any regular arrangement.
-_REFERENCE_WEIGHTS = 1.0 + np.modf(np.arange(1, 257) * 0.6180339887498949 + 0.1234567)[0]
-
-
 def compile_kernels() -> bool:
     """Make pass 2's compiled kernels ready: Numba compiles them on a machine's first render (about 20 s
     here) and writes them to its cache (``__pycache__`` beside the modules, or a per-user folder where that
     is read-only); afterwards this loads them in a fraction of a second. Returns whether any had to be
     compiled."""
     compile_detection()
-    compile_cells()
     compile_arrangement()
     _cone_planes(np.zeros((1, 3, 3)), np.zeros(1, np.int64), np.empty((1, 3, 3)), np.empty((1, 3), np.bool_))
     _bounding_cones(np.zeros((1, 3, 2)), np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros((1, 3)), np.zeros((1, 3)),
@@ -634,7 +551,7 @@ def compile_kernels() -> bool:
                np.zeros((1, 3, 3)), np.zeros(1, np.int64), np.empty((1, HULL_WIDTH)))
     _silhouette_lights(three, np.zeros((1, 2, 3)), np.zeros((1, 2)), np.zeros((1, 2)), np.zeros((1, 2), np.int64),
                        np.zeros(1, np.int64), np.zeros((1, 3, 3)), np.zeros(1, np.int64), np.zeros(1, np.uint64))
-    kernels = (detection_module._detect, arcs_module._arcs_in_cells, arrangement_module._fans,
+    kernels = (detection_module._detect, *compile_regions(), arrangement_module._fans,
                arrangement_module._jumps, _cone_planes, _bounding_cones, _reference_points, _hull_rows,
                _silhouette_lights, *compile_geometry(), *compile_terminator())
     return any(kernel.stats.cache_misses for kernel in kernels)
@@ -686,27 +603,6 @@ def _most_common(values: np.ndarray) -> np.ndarray:
     counts = (values[:, :, None] == values[:, None, :]).sum(axis=2)             # (N, K) occurrences
     best = counts.max(axis=1, keepdims=True)
     return np.where(counts == best, values, np.iinfo(np.int64).min).max(axis=1)
-
-
-def reference_points(uv: np.ndarray, count: np.ndarray) -> np.ndarray:
-    """A generic interior point R of each convex polygon (N, V, 2) with ``count`` (N,) vertices, (N, 2): its
-    vertices' mean under irregular positive weights (``_REFERENCE_WEIGHTS``)."""
-    out = np.empty((len(count), 2))
-    _reference_points(np.ascontiguousarray(uv, np.float64), np.ascontiguousarray(count, np.int64),
-                      _REFERENCE_WEIGHTS, out)
-    return out
-
-
-@njit(cache=True, nogil=True)
-def _reference_points(uv, count, weights, out):
-    for n in range(len(count)):
-        total, u, v = 0.0, 0.0, 0.0
-        for k in range(count[n]):
-            total += weights[k]
-            u += weights[k] * uv[n, k, 0]
-            v += weights[k] * uv[n, k, 1]
-        total = max(total, 1e-300)
-        out[n, 0], out[n, 1] = u / total, v / total
 
 
 def _directions_to_uv(couples: ReceiverLight, frames: LightFrames, couple: np.ndarray, direction: np.ndarray
@@ -831,10 +727,9 @@ def _visible_parts(surface, couple_pixel, couples, frames, edges, tracer, arcs: 
     polygons (couple, uv, count); adds to ``stats``."""
     # Regions: a couple's light, or, where many arcs cross it (foliage), the cells of a grid over it, so
     # that the arrangement's cost (pairs of arcs) follows the arcs per cell.
-    heavy = members[arcs_of[members] > CELL_ARCS]
-    region_couple, region_uv, region_count, region_arcs, region_ref_uv = _regions(
-        couples, frames, arcs, arcs_of, heavy, reference, reference_uv, members)
-    stats["cells"] += int(len(region_couple) - (len(members) - len(heavy)))
+    region_couple, region_uv, region_count, region_arcs, region_ref_uv, cells = couple_regions(
+        couples, frames, arcs, arcs_of, reference, reference_uv, members)
+    stats["cells"] += cells
     region_dirs = couples.directions(frames, region_uv, region_couple)
     region_ref = couples.directions(frames, region_ref_uv[:, None, :], region_couple)[:, 0]
     region_arcs_of = np.bincount(region_arcs.couple, minlength=len(region_couple))
@@ -882,91 +777,3 @@ def _visible_parts(surface, couple_pixel, couples, frames, edges, tracer, arcs: 
     polygons = (region_couple[whole_regions], trim(region_uv[whole_regions], region_count[whole_regions]),
                 region_count[whole_regions])
     return uv, piece_couple, sign, polygons
-
-
-def _regions(couples: ReceiverLight, frames: LightFrames, arcs: Arcs, arcs_of: np.ndarray, heavy: np.ndarray,
-             reference: np.ndarray, reference_uv: np.ndarray, members: np.ndarray):
-    """Each couple's light as one region, except the ``heavy`` couples', cut into a grid of cells (about
-    CELL_TARGET arcs each). Returns region_couple (R,), region_uv (R, W, 2), region_count (R,), the arcs
-    per region (``Arcs`` whose ``couple`` is the region, sorted, jumps relative to each region's reference
-    point) and the regions' reference points (R, 2). ``members`` are the couples (of ``arcs``) to cut up."""
-    n_couples = len(couples.count)
-    light_couples = np.setdiff1d(members, heavy)
-    region_of_couple = np.full(n_couples, -1, np.int64)
-    region_of_couple[light_couples] = np.arange(len(light_couples))
-    kept = arcs.take(np.flatnonzero(region_of_couple[arcs.couple] >= 0))
-    kept.couple = region_of_couple[kept.couple]
-    if len(heavy) == 0:
-        return light_couples, couples.uv[light_couples], couples.count[light_couples], kept, reference_uv[light_couples]
-    # Cells: a g x g grid over the (u, v) box of each heavy light, each the light clipped to its square.
-    grid = np.minimum(np.ceil(np.sqrt(arcs_of[heavy] / CELL_TARGET)), MAX_GRID).astype(np.int64)
-    uv, count = couples.uv[heavy], couples.count[heavy]
-    real = np.arange(uv.shape[1])[None, :] < count[:, None]
-    low = np.stack([np.where(real, uv[..., axis], np.inf).min(axis=1) for axis in range(2)], axis=1)
-    high = np.stack([np.where(real, uv[..., axis], -np.inf).max(axis=1) for axis in range(2)], axis=1)
-    step = (high - low) / grid[:, None]
-    n_cells = grid * grid
-    cell_first = np.cumsum(n_cells) - n_cells
-    owner = np.repeat(np.arange(len(heavy)), n_cells)
-    cell = np.arange(int(n_cells.sum())) - cell_first[owner]
-    cell_i, cell_j = cell // grid[owner], cell % grid[owner]
-    # Clipped in batches of cells, keeping the non-empty ones: a grid's corner cells often miss the light,
-    # and the (cell, vertex) polygons of every cell at once were most of pass 2's memory.
-    nonempty = np.zeros(len(owner), bool)
-    kept_polygons, kept_counts = [], []
-    for lo in range(0, len(owner), CELL_BATCH):  # batches of cells
-        rows = slice(lo, lo + CELL_BATCH)
-        batch_owner = owner[rows]
-        u0 = low[batch_owner, 0] + cell_i[rows] * step[batch_owner, 0]
-        u1 = low[batch_owner, 0] + (cell_i[rows] + 1) * step[batch_owner, 0]
-        v0 = low[batch_owner, 1] + cell_j[rows] * step[batch_owner, 1]
-        v1 = low[batch_owner, 1] + (cell_j[rows] + 1) * step[batch_owner, 1]
-        one, zero = np.ones(len(u0)), np.zeros(len(u0))
-        sides = np.stack([np.stack([one, zero, -u0], 1), np.stack([-one, zero, u1], 1), np.stack([zero, one, -v0], 1),
-                          np.stack([zero, -one, v1], 1)], axis=1)          # u >= u0, u <= u1, v >= v0, v <= v1
-        polygon, polygon_count = clip_by_lines(uv[batch_owner], count[batch_owner], sides)
-        keep = polygon_count >= 3
-        nonempty[rows] = keep
-        kept_polygons.append(trim(polygon[keep], polygon_count[keep]))
-        kept_counts.append(polygon_count[keep])
-    cell_width = max([p.shape[1] for p in kept_polygons] + [3])
-    cell_uv = np.concatenate([pad_to(p, cell_width) for p in kept_polygons]) if kept_polygons else \
-        np.zeros((0, cell_width, 2))
-    cell_count = np.concatenate(kept_counts) if kept_counts else np.zeros(0, np.int64)
-    cell_region = np.full(len(owner), -1, np.int64)
-    cell_region[nonempty] = len(light_couples) + np.arange(int(nonempty.sum()))
-    cell_couple = heavy[owner[nonempty]]
-    # The heavy couples' arcs go to the cells their (u, v) extent meets, clipped to each cell's cone.
-    heavy_index = np.full(n_couples, -1, np.int64)
-    heavy_index[heavy] = np.arange(len(heavy))
-    moved = arcs.take(np.flatnonzero(heavy_index[arcs.couple] >= 0))
-    h = heavy_index[moved.couple]
-    seg = moved.end - moved.start
-    ends = np.stack([moved.start + moved.enter[:, None] * seg, moved.start + moved.leave[:, None] * seg], axis=1)
-    ends_uv = _directions_to_uv(couples, frames, moved.couple, ends)                    # (S, 2, 2)
-    g = grid[h]
-    span = np.clip(np.floor((ends_uv - low[h][:, None]) / np.maximum(step[h], 1e-300)[:, None]), 0,
-                   (g - 1)[:, None, None]).astype(np.int64)
-    i0, i1 = span[:, :, 0].min(axis=1), span[:, :, 0].max(axis=1)
-    j0, j1 = span[:, :, 1].min(axis=1), span[:, :, 1].max(axis=1)
-    cell_ref_uv = reference_points(cell_uv, cell_count)
-    planes, valid = cone_of_light(couples.directions(frames, cell_uv, cell_couple), cell_count)  # per cell
-    toward = -couples.side[moved.couple][:, None] * frames.normal[couples.light[moved.couple]]   # per arc
-    cell_cone = np.where(cell_region >= 0, cell_region - len(light_couples), -1)
-    arc, local, enter, leave = arcs_in_cells(moved.start, moved.end, moved.normal, toward,
-                                             np.stack([i0, i1, j0, j1], axis=1), g, cell_first[h], cell_cone,
-                                             planes, valid)
-    region = local + len(light_couples)
-    # Jumps were taken relative to the couple's reference point; the cell's may lie on the other side.
-    cell_ref = couples.directions(frames, cell_ref_uv[:, None, :], cell_couple)[:, 0][local]
-    side_couple = np.einsum("nk,nk->n", moved.normal[arc], reference[moved.couple[arc]]) >= 0
-    side_cell = np.einsum("nk,nk->n", moved.normal[arc], cell_ref) >= 0
-    jump = np.where(side_couple == side_cell, moved.jump[arc], -moved.jump[arc])
-    in_cells = Arcs(region, moved.start[arc], moved.end[arc], moved.normal[arc], enter, leave, jump)
-    region_arcs = Arcs.concat([kept, in_cells])
-    region_arcs = region_arcs.take(np.argsort(region_arcs.couple, kind="stable"))
-    width = max(couples.uv.shape[1], cell_uv.shape[1])
-    region_uv = np.concatenate([pad_to(couples.uv[light_couples], width), pad_to(cell_uv, width)])
-    return (np.concatenate([light_couples, cell_couple]), region_uv,
-            np.concatenate([couples.count[light_couples], cell_count]), region_arcs,
-            np.concatenate([reference_uv[light_couples], cell_ref_uv]))
