@@ -13,6 +13,8 @@ turned where the cell's reference point lies on the other side of it than the co
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 from numba import njit
 
@@ -47,6 +49,9 @@ def couple_regions(couples: ReceiverLight, frames: LightFrames, arcs: Arcs, arcs
     grid = np.where(arcs_of[members] > CELL_ARCS,
                     np.minimum(np.ceil(np.sqrt(arcs_of[members] / CELL_TARGET)), MAX_GRID), 0).astype(np.int64)
     heavy_rows = np.flatnonzero(grid > 0)
+    if len(heavy_rows) == 0:  # every region is a couple's light: the arcs stay, renumbered by member
+        region_arcs = dataclasses.replace(arcs, couple=np.searchsorted(members, arcs.couple))
+        return (members, couples.uv[members], couples.count[members], region_arcs, reference_uv[members], 0)
     heavy = members[heavy_rows]
     g = grid[heavy_rows]
     uv, count = couples.uv[heavy], couples.count[heavy]

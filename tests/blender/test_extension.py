@@ -14,6 +14,7 @@ import os
 import subprocess
 import sys
 import textwrap
+import zipfile
 
 import pytest
 
@@ -86,6 +87,14 @@ def test_extension_zip_installs_enables_and_renders(tmp_path):
         + build.stderr[-3000:])
     packages = sorted(dist.glob("lazyvis-*.zip"))
     assert len(packages) == 1, build.stdout
+    # Only the add-on, its manifest and the wheels: no build leftovers (an editable install's egg-info,
+    # bytecode) and nothing of the repository's tests, benchmarks or tools.
+    with zipfile.ZipFile(packages[0]) as archive:
+        names = archive.namelist()
+    leftovers = [name for name in names if ".egg-info" in name or "__pycache__" in name or name.endswith(".pyc")
+                 or name.split("/")[0] in ("tests", "bench", "tools", "sample_blends", ".venv", ".git")]
+    assert not leftovers, leftovers[:10]
+    assert "blender_manifest.toml" in names and "lazyvis_addon/core/render.py" in names, names[:20]
 
     user = tmp_path / "blender_user"  # never the real ~/.config/blender
     env = {key: value for key, value in os.environ.items() if not key.startswith("BLENDER_USER")}
