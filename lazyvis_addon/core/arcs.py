@@ -72,7 +72,7 @@ def jump_at(couple, r, edge_start, third, triangle, cut_light, face_normal, face
     return total
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def arc_test(couple, cone, cone_valid, r, total, edge_start, edge_end, scratch, out_start, out_end, out_normal,
              out_enter, out_leave, out_jump, m):
     """Whether edge record ``r`` (start, end (E, 3)), whose ``jump_at`` is ``total`` (not 0), is an arc
@@ -130,7 +130,7 @@ def arc_test(couple, cone, cone_valid, r, total, edge_start, edge_end, scratch, 
     return True
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _cone_range(a, b, cross, planes, valid, toward_x, toward_y, toward_z):
     """The parameter range enter .. leave of the segment a -> b (3,) inside a cone (unit inward planes
     (V, 3), ``valid`` (V,)) that opens towards ``toward``, and whether a range of positive length remains.

@@ -113,7 +113,7 @@ def _straddles(va, vb):
 
 @njit(cache=True, nogil=True, inline="always")
 def _split(seg_start, seg_end, first, n, start, end, normal, lengths, skip, splits, split_arc, split_clean, va, vb,
-           point):
+           point, candidates):
     """Parameters (written to ``splits``, returned count) where arcs first .. first + n - 1 (not ``skip``)
     cross the segment seg_start -> seg_end, with SPLIT_SLACK (as ``_on_arc``), the arc of each
     (``split_arc``) and whether the crossing is clean (``split_clean``, see CLEAN_MARGIN). ``lengths``
@@ -121,11 +121,21 @@ def _split(seg_start, seg_end, first, n, start, end, normal, lengths, skip, spli
     ends in ``va``, ``vb`` (n,), for ``_near_depth``; ``point`` (3,) is scratch."""
     count = 0
     reach = _norm(seg_start) + _norm(seg_end)
-    for j in range(first, first + n):
-        va[j - first] = _dot(normal[j], seg_start)
-        vb[j - first] = _dot(normal[j], seg_end)
-        if j == skip or not _straddles(va[j - first], vb[j - first]):
-            continue
+    a0, a1, a2 = seg_start[0], seg_start[1], seg_start[2]
+    b0, b1, b2 = seg_end[0], seg_end[1], seg_end[2]
+    # The planes' values at both ends, and the arcs whose plane separates them, without a branch per arc
+    # (which side is data, so a branch would be mispredicted often).
+    crossing = 0
+    for jj in range(n):
+        j = first + jj
+        x = normal[j, 0] * a0 + normal[j, 1] * a1 + normal[j, 2] * a2
+        y = normal[j, 0] * b0 + normal[j, 1] * b1 + normal[j, 2] * b2
+        va[jj] = x
+        vb[jj] = y
+        candidates[crossing] = jj
+        crossing += ((x < 0.0) ^ (y < 0.0)) & (x != 0.0) & (y != 0.0) & (j != skip)
+    for c in range(crossing):
+        j = first + candidates[c]
         t = va[j - first] / (va[j - first] - vb[j - first])
         for k in range(3):
             point[k] = seg_start[k] + t * (seg_end[k] - seg_start[k])
@@ -144,20 +154,24 @@ def _split(seg_start, seg_end, first, n, start, end, normal, lengths, skip, spli
 
 @njit(cache=True, nogil=True, inline="always")
 def _near_depth(seg_start, seg_end, t_mid, own, first, n, start, end, normal, jump, ref, ref_value, depth,
-                va, vb, mid, point):
+                va, vb, mid, point, candidates):
     """D on the reference side of a piece: D(R) plus the jumps of the arcs (not ``own``) that the arc from
     R to the piece's midpoint crosses; which side of an arc's plane the midpoint lies on is interpolated
     from the carrier's end values ``va``, ``vb`` (n,) (``_split``'s). ``mid``, ``point`` (3,): scratch."""
     for k in range(3):
         mid[k] = seg_start[k] + t_mid * (seg_end[k] - seg_start[k])
     d = depth
-    for j in range(first, first + n):
-        if j == own:
-            continue
+    crossing = 0
+    for jj in range(n):  # the planes between R and the midpoint, without a branch per arc (see _split)
+        origin_value = ref_value[jj]
+        value = (1.0 - t_mid) * va[jj] + t_mid * vb[jj]
+        candidates[crossing] = jj
+        crossing += ((origin_value < 0.0) ^ (value < 0.0)) & (origin_value != 0.0) & (value != 0.0) & \
+            (first + jj != own)
+    for c in range(crossing):
+        j = first + candidates[c]
         origin_value = ref_value[j - first]
         value = (1.0 - t_mid) * va[j - first] + t_mid * vb[j - first]
-        if not _straddles(origin_value, value):
-            continue
         s = origin_value / (origin_value - value)
         for k in range(3):
             point[k] = ref[k] + s * (mid[k] - ref[k])
@@ -168,13 +182,13 @@ def _near_depth(seg_start, seg_end, t_mid, own, first, n, start, end, normal, ju
 
 @njit(cache=True, nogil=True, inline="always")
 def _breakpoints(seg_start, seg_end, low, high, skip, first, n, start, end, normal, lengths, splits, split_arc,
-                 split_clean, va, vb, point):
+                 split_clean, va, vb, point, candidates):
     """The carrier seg_start -> seg_end's part low .. high cut where the arcs (not ``skip``) cross it: the
     sorted parameters low, the crossings strictly inside, high, written to ``splits`` with their arcs and
     cleanness (``_split``; -1 and False for low and high); returns their count. (A light edge's crossings
     all lie inside its 0 .. 1; an arc's may fall outside its cone range.)"""
     s = _split(seg_start, seg_end, first, n, start, end, normal, lengths, skip, splits, split_arc, split_clean, va, vb,
-               point)
+               point, candidates)
     kept = 0
     for q in range(s):
         if splits[q] > low and splits[q] < high:
@@ -236,6 +250,7 @@ def _fans(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_dirs
     split_arc = np.empty(most + 2, np.int64)
     split_clean = np.empty(most + 2, np.bool_)
     va, vb = np.empty(most), np.empty(most)
+    candidates = np.empty(most + 1, np.int64)
     edge_pieces = np.empty((width * (most + 1), 2, 3))
     edge_seen = np.empty(width * (most + 1), np.bool_)
     for c in range(n_couples):
@@ -254,7 +269,7 @@ def _fans(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_dirs
             seg_start = light_dirs[c, k]
             seg_end = light_dirs[c, k + 1 if k + 1 < count else 0]
             cuts = _breakpoints(seg_start, seg_end, 0.0, 1.0, -1, first, n, start, end, normal, lengths, splits,
-                                split_arc, split_clean, va, vb, point)
+                                split_arc, split_clean, va, vb, point, candidates)
             d_near, known = 0, False
             for q in range(cuts - 1):
                 t0, t1 = splits[q], splits[q + 1]
@@ -264,7 +279,7 @@ def _fans(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_dirs
                     continue
                 if not known:
                     d_near = _near_depth(seg_start, seg_end, 0.5 * (t0 + t1), -1, first, n, start, end, normal,
-                                         jump, ref, ref_value, depth[c], va, vb, mid, point)
+                                         jump, ref, ref_value, depth[c], va, vb, mid, point, candidates)
                     known = True
                 low = min(low, d_near)
                 for axis in range(3):
@@ -280,7 +295,7 @@ def _fans(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_dirs
         # Arc pieces: a boundary where D <= 0 on one side only.
         for i in range(first, first + n):
             cuts = _breakpoints(start[i], end[i], enter[i], leave[i], i, first, n, start, end, normal, lengths,
-                                splits, split_arc, split_clean, va, vb, point)
+                                splits, split_arc, split_clean, va, vb, point, candidates)
             d_near, known = 0, False
             for q in range(cuts - 1):
                 t0, t1 = splits[q], splits[q + 1]
@@ -290,7 +305,7 @@ def _fans(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_dirs
                     continue
                 if not known:
                     d_near = _near_depth(start[i], end[i], 0.5 * (t0 + t1), i, first, n, start, end, normal, jump,
-                                         ref, ref_value, depth[c], va, vb, mid, point)
+                                         ref, ref_value, depth[c], va, vb, mid, point, candidates)
                     known = True
                 d_far = d_near + jump[i]
                 low = min(low, min(d_near, d_far))
