@@ -122,6 +122,31 @@ def test_stacked_plates_and_a_pole_through_the_lights_plane():
     assert (edges.light >= 0).sum() == 8  # the pole's 8 side triangles cross the light's plane
 
 
+def test_probe_rays_outvote_a_miscounted_reference_ray_in_two_rounds(monkeypatch):
+    """Leaves over a floor, one crossed region in five with R's own ray a layer off: R's count and two
+    probes decide where they agree, the other two probes are cast only where they differ, and the mode of
+    all five restores every region's depth: the image is the one without the miscount."""
+    scene = plane_under_light(resolution=12, blocker=leaves(150, seed=5))
+    clean = render(scene, CENTRES)
+    counts = silhouettes.depth_counts
+    miscounted = []
+
+    def miscounting(tracer, origin, target, own_triangle, full, *args):
+        count = counts(tracer, origin, target, own_triangle, full, *args)
+        if not full.all():  # the reference rays (probe rays count every region fully)
+            wrong = full & (np.arange(len(count)) % 5 == 0)
+            count[wrong] += 1
+            miscounted.append(int(wrong.sum()))
+        return count
+
+    monkeypatch.setattr(silhouettes, "depth_counts", miscounting)
+    out = render(scene, CENTRES)
+    assert sum(miscounted) > 20
+    np.testing.assert_array_equal(out.combined, clean.combined)
+    # The second round's two probes only where R was off (and where the clean render needed them too).
+    assert clean.stats["depth_rays"] < out.stats["depth_rays"] <= clean.stats["depth_rays"] + 2 * sum(miscounted)
+
+
 def test_foliage_cells_and_buffers_change_nothing(monkeypatch):
     """Many leaves over a floor: couples crossed by many arcs are cut into cells, each with its own
     reference depth; cells, no cells and chunks of a query or two (detection's buffer outgrown again and

@@ -584,14 +584,14 @@ def pixel_batch_for(memory_budget_mb: float, threads: int, frames: LightFrames) 
 
 # Vertex weights of the probe points (positive: inside the convex region), far from R's.
 _PROBE_WEIGHTS = (0.35, 0.6, 0.85, 0.2)
+# Probes cast first; the rest only where these and R's count differ (see _visible_parts).
+PROBES_FIRST = 2
 
 
-def _probe_points(uv: np.ndarray, count: np.ndarray) -> np.ndarray:
-    """Probe points (N, 2) inside convex polygons (N, V, 2): probe i of a run of len(_PROBE_WEIGHTS) leans
-    towards vertex i * count / len(_PROBE_WEIGHTS) of its polygon."""
-    n = len(count)
-    probe = np.arange(n) % len(_PROBE_WEIGHTS)
-    rows = np.arange(n)
+def _probe_points(uv: np.ndarray, count: np.ndarray, probe: np.ndarray) -> np.ndarray:
+    """Probe points (N, 2) inside convex polygons (N, V, 2): probe ``probe`` (N,) int64 (an index into
+    _PROBE_WEIGHTS) leans towards vertex probe * count / len(_PROBE_WEIGHTS) of its polygon."""
+    rows = np.arange(len(count))
     corner = (probe * count) // len(_PROBE_WEIGHTS)
     weight = np.asarray(_PROBE_WEIGHTS)[probe]
     centre = reference_points(uv, count)
@@ -745,18 +745,34 @@ def _visible_parts(surface, couple_pixel, couples, frames, edges, tracer, arcs: 
     # crossed region, carried back to R across the arcs between, each estimate D(R) too, and the value
     # most of the estimates give is kept (the larger on a tie).
     crossed_regions = np.flatnonzero(region_arcs_of > 0)
-    if len(crossed_regions):
-        probe_region = np.repeat(crossed_regions, len(_PROBE_WEIGHTS))
-        probe_uv = _probe_points(region_uv[probe_region], region_count[probe_region])
+
+    def probe_estimates(regions: np.ndarray, probes: list[int]) -> np.ndarray:
+        """(len(regions), len(probes)) int64 estimates of D(R): each probe ray's count carried back to R."""
+        probe_region = np.repeat(regions, len(probes))
+        probe = np.tile(np.asarray(probes, np.int64), len(regions))
+        probe_uv = _probe_points(region_uv[probe_region], region_count[probe_region], probe)
         probe_dir = couples.directions(frames, probe_uv[:, None, :], region_couple[probe_region])[:, 0]
         probe_depth = depth_counts(tracer, origin[probe_region], position[region_couple[probe_region]] + probe_dir,
                                    own[region_couple[probe_region]], np.ones(len(probe_region), bool),
                                    couples.light[region_couple[probe_region]], edges)
         between = jumps_between(region_arcs, region_ref, probe_region, probe_dir, len(region_couple))
-        estimates = np.concatenate([depth[crossed_regions][:, None],
-                                    (probe_depth - between).reshape(len(crossed_regions), -1)], axis=1)
-        depth[crossed_regions] = _most_common(estimates)
         stats["depth_rays"] += len(probe_region)
+        return (probe_depth - between).reshape(len(regions), len(probes))
+
+    if len(crossed_regions):
+        # The mode of R's count and all probes' estimates, in two rounds: where R and the first two probes
+        # agree, that value is the mode of all five whatever the other two give (three of five), so their
+        # rays are cast only where the first three differ.
+        first = PROBES_FIRST
+        estimates = np.concatenate([depth[crossed_regions][:, None],
+                                    probe_estimates(crossed_regions, list(range(first)))], axis=1)
+        assert 2 * estimates.shape[1] > len(_PROBE_WEIGHTS) + 1  # a unanimous first round is a majority
+        split = np.flatnonzero((estimates != estimates[:, :1]).any(axis=1))
+        decided = estimates[:, 0].copy()
+        if len(split):
+            rest = probe_estimates(crossed_regions[split], list(range(first, len(_PROBE_WEIGHTS))))
+            decided[split] = _most_common(np.concatenate([estimates[split], rest], axis=1))
+        depth[crossed_regions] = decided
 
     # Regions crossed by no arc are wholly visible or wholly hidden: their polygon as it is.
     crossed = region_arcs_of > 0
