@@ -30,13 +30,14 @@ MAX_GRID = 24
 CELL_BATCH = 1 << 15
 
 
-def couple_regions(couples: ReceiverLight, frames: LightFrames, arcs: Arcs, arcs_of: np.ndarray, reference: np.ndarray,
-                   reference_uv: np.ndarray, members: np.ndarray):
+def couple_regions(couples: ReceiverLight, frames: LightFrames, arcs: Arcs, order: np.ndarray, arcs_of: np.ndarray,
+                   reference: np.ndarray, reference_uv: np.ndarray, members: np.ndarray):
     """The regions of the couples ``members`` (sorted) and their arcs.
 
     Parameters
     ----------
-    couples : the batch's couples; arcs : ``Arcs`` of the members (and no other couple), sorted by couple;
+    couples : the batch's couples; arcs : ``Arcs`` of the members (and no other couple), in any order, and
+    order : (S,) int64 the stable order of arcs.couple (the arcs are gathered in it, not sorted first);
     arcs_of : (Nc,) int64 arcs per couple; reference, reference_uv : (Nc, 3) and (Nc, 2) each couple's R.
 
     Returns
@@ -50,6 +51,7 @@ def couple_regions(couples: ReceiverLight, frames: LightFrames, arcs: Arcs, arcs
                     np.minimum(np.ceil(np.sqrt(arcs_of[members] / CELL_TARGET)), MAX_GRID), 0).astype(np.int64)
     heavy_rows = np.flatnonzero(grid > 0)
     if len(heavy_rows) == 0:  # every region is a couple's light: the arcs stay, renumbered by member
+        arcs = arcs.take(order)
         region_arcs = dataclasses.replace(arcs, couple=np.searchsorted(members, arcs.couple))
         return (members, couples.uv[members], couples.count[members], region_arcs, reference_uv[members], 0)
     heavy = members[heavy_rows]
@@ -139,7 +141,8 @@ def couple_regions(couples: ReceiverLight, frames: LightFrames, arcs: Arcs, arcs
               f64(low), f64(step), i64(cell_first), i64(slot_region), i64(slot_cone), f64(planes),
               np.ascontiguousarray(valid, np.bool_), f64(cell_ref), f64(reference), i64(couples.light),
               f64(couples.local), f64(couples.side), frames.tangent, frames.bitangent, frames.normal,
-              f64(arcs.start), f64(arcs.end), f64(arcs.normal), f64(arcs.enter), f64(arcs.leave), i64(arcs.jump))
+              i64(order), f64(arcs.start), f64(arcs.end), f64(arcs.normal), f64(arcs.enter), f64(arcs.leave),
+              i64(arcs.jump))
     capacity = max(1024, 2 * len(arcs.couple))
     while True:  # the rows outgrow their estimate (an arc in several cells): again with four times the room
         out = _region_arcs(*inputs, capacity)
@@ -154,7 +157,7 @@ def couple_regions(couples: ReceiverLight, frames: LightFrames, arcs: Arcs, arcs
 @njit(cache=True, nogil=True)
 def _region_arcs(members, first_arc, arcs_of, region_first, grid_of, heavy_index, low, step, cell_first,
                  slot_region, slot_cone, planes, valid, cell_ref, reference, light, local, side, tangent, bitangent,
-                 normal_l, start, end, normal, enter, leave, jump, capacity):
+                 normal_l, order, start, end, normal, enter, leave, jump, capacity):
     """The arcs of each region, in region order (see the module docstring). Returns region, start, end,
     normal, enter, leave, jump (capacity rows) and the number filled, or -1 when they did not fit."""
     out_region = np.empty(capacity, np.int64)
@@ -181,7 +184,8 @@ def _region_arcs(members, first_arc, arcs_of, region_first, grid_of, heavy_index
         if g == 0:  # the couple's light is its one region
             if m + n > capacity:
                 return out_region, out_start, out_end, out_normal, out_enter, out_leave, out_jump, -1
-            for a in range(a0, a0 + n):
+            for k_arc in range(a0, a0 + n):
+                a = order[k_arc]
                 out_region[m] = region_first[r]
                 for k in range(3):
                     out_start[m, k], out_end[m, k], out_normal[m, k] = start[a, k], end[a, k], normal[a, k]
@@ -192,7 +196,8 @@ def _region_arcs(members, first_arc, arcs_of, region_first, grid_of, heavy_index
         l = light[c]
         rows = 0
         toward0, toward1, toward2 = -side[c] * normal_l[l, 0], -side[c] * normal_l[l, 1], -side[c] * normal_l[l, 2]
-        for a in range(a0, a0 + n):
+        for k_arc in range(a0, a0 + n):
+            a = order[k_arc]
             # The (u, v) box of the arc's part inside the couple's cone: the grid cells it may cross.
             i0, i1, j0, j1 = g, -1, g, -1
             for e in range(2):
@@ -277,5 +282,5 @@ def compile_regions() -> list:
     """Compile ``_region_arcs`` (or load it from Numba's cache) on a one-couple input; returns it."""
     i, f, f2 = np.zeros(1, np.int64), np.zeros((1, 3)), np.zeros((1, 2))
     _region_arcs(i, i, i, i, i, i, f2, f2, i, i, i, np.zeros((1, 3, 3)), np.zeros((1, 3), np.bool_), f, f, i, f,
-                 np.ones(1), f, f, f, f, f, f, np.zeros(1), np.zeros(1), i, 16)
+                 np.ones(1), f, f, f, i, f, f, f, np.zeros(1), np.zeros(1), i, 16)
     return [_region_arcs]

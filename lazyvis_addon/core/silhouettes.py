@@ -549,11 +549,13 @@ def compile_kernels() -> bool:
     one, three = np.zeros(1), np.zeros((1, 3))
     _hull_rows(three, three, np.zeros(1, np.int64), one, one, three, three, three, three, np.zeros((1, 3, 2)),
                np.zeros((1, 3, 3)), np.zeros(1, np.int64), np.empty((1, HULL_WIDTH)))
+    _fan_triangles_kernel(np.zeros(1, np.int64), np.zeros(1, np.int64), three, three, three, three,
+                          np.zeros((1, 2)), three, three, np.empty((1, 3, 2)))
     _silhouette_lights(three, np.zeros((1, 2, 3)), np.zeros((1, 2)), np.zeros((1, 2)), np.zeros((1, 2), np.int64),
                        np.zeros(1, np.int64), np.zeros((1, 3, 3)), np.zeros(1, np.int64), np.zeros(1, np.uint64))
     kernels = (detection_module._detect, *compile_regions(), arrangement_module._fans,
                arrangement_module._jumps, _cone_planes, _bounding_cones, _reference_points, _hull_rows,
-               _silhouette_lights, *compile_geometry(), *compile_terminator())
+               _silhouette_lights, _fan_triangles_kernel, *compile_geometry(), *compile_terminator())
     return any(kernel.stats.cache_misses for kernel in kernels)
 
 
@@ -605,19 +607,33 @@ def _most_common(values: np.ndarray) -> np.ndarray:
     return np.where(counts == best, values, np.iinfo(np.int64).min).max(axis=1)
 
 
-def _directions_to_uv(couples: ReceiverLight, frames: LightFrames, couple: np.ndarray, direction: np.ndarray
-                      ) -> np.ndarray:
-    """Where directions (..., 3) from each couple's receiver meet its light's plane, (..., 2) in (u, v)."""
-    light = couples.light[couple]
-    local = couples.local[couple]
-    extra = direction.ndim - 2
-    shape = (slice(None),) + (None,) * extra
-    d_t = np.einsum("n...k,nk->n...", direction, frames.tangent[light])
-    d_b = np.einsum("n...k,nk->n...", direction, frames.bitangent[light])
-    d_n = np.einsum("n...k,nk->n...", direction, frames.normal[light])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        reach = -local[:, 2][shape] / d_n
-    return np.stack([local[:, 0][shape] + reach * d_t, local[:, 1][shape] + reach * d_b], axis=-1)
+def _fan_triangles(couples: ReceiverLight, frames: LightFrames, couple: np.ndarray, reference_uv: np.ndarray,
+                   start: np.ndarray, end: np.ndarray) -> np.ndarray:
+    """Fan triangles (M, 3, 2) float64 in (u, v): each piece's region reference point ``reference_uv``
+    (M, 2), then where its directions ``start``, ``end`` (M, 3) from the receiver of ``couple`` (M,) int64
+    meet the light's plane (inf or nan for a direction parallel to it, as numpy's division gives)."""
+    out = np.empty((len(couple), 3, 2))
+    _fan_triangles_kernel(np.ascontiguousarray(couple, np.int64), np.ascontiguousarray(couples.light, np.int64),
+                          np.ascontiguousarray(couples.local, np.float64), frames.tangent, frames.bitangent,
+                          frames.normal, np.ascontiguousarray(reference_uv, np.float64),
+                          np.ascontiguousarray(start, np.float64), np.ascontiguousarray(end, np.float64), out)
+    return out
+
+
+@njit(cache=True, nogil=True, error_model="numpy")  # numpy's division: inf or nan, never an exception
+def _fan_triangles_kernel(couple, light, local, tangent, bitangent, normal, reference_uv, start, end, out):
+    for m in range(len(couple)):
+        c = couple[m]
+        l = light[c]
+        out[m, 0, 0], out[m, 0, 1] = reference_uv[m, 0], reference_uv[m, 1]
+        for corner in range(2):
+            d = start[m] if corner == 0 else end[m]
+            d_t = d[0] * tangent[l, 0] + d[1] * tangent[l, 1] + d[2] * tangent[l, 2]
+            d_b = d[0] * bitangent[l, 0] + d[1] * bitangent[l, 1] + d[2] * bitangent[l, 2]
+            d_n = d[0] * normal[l, 0] + d[1] * normal[l, 1] + d[2] * normal[l, 2]
+            reach = -local[c, 2] / d_n
+            out[m, 1 + corner, 0] = local[c, 0] + reach * d_t
+            out[m, 1 + corner, 1] = local[c, 1] + reach * d_b
 
 
 def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, couples: ReceiverLight,
@@ -709,8 +725,7 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
                          own, cone, cone_valid, bound, reference, ARC_CHUNK)
     for (first, last), found, tests, visits in chunks:  # chunks of queries, about ARC_CHUNK arcs each
         members = np.sort(by_query[query_first[first]:query_first[last - 1] + query_size[last - 1]])
-        arcs = Arcs(*found)
-        arcs = arcs.take(np.argsort(arcs.couple, kind="stable"))
+        arcs = Arcs(*found)  # in query order; gathered by couple where the regions are made
         arcs_of[members] = np.bincount(arcs.couple, minlength=n_couples)[members]
         stats["nodes_visited"] += visits
         stats["edge_tests"] += tests
@@ -723,12 +738,12 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
 def _visible_parts(surface, couple_pixel, couples, frames, edges, tracer, arcs: Arcs, arcs_of: np.ndarray,
                    reference, reference_uv, position, own, members: np.ndarray, stats: dict):
     """Regions, reference depths and the arrangement of the couples ``members`` (sorted, whose arcs
-    ``arcs`` are, sorted by couple): signed fan triangles (uv (M, 3, 2), couple (M,), sign (M,)) and whole
+    ``arcs`` are, in query order): signed fan triangles (uv (M, 3, 2), couple (M,), sign (M,)) and whole
     polygons (couple, uv, count); adds to ``stats``."""
     # Regions: a couple's light, or, where many arcs cross it (foliage), the cells of a grid over it, so
     # that the arrangement's cost (pairs of arcs) follows the arcs per cell.
     region_couple, region_uv, region_count, region_arcs, region_ref_uv, cells = couple_regions(
-        couples, frames, arcs, arcs_of, reference, reference_uv, members)
+        couples, frames, arcs, np.argsort(arcs.couple, kind="stable"), arcs_of, reference, reference_uv, members)
     stats["cells"] += cells
     region_dirs = couples.directions(frames, region_uv, region_couple)
     region_ref = couples.directions(frames, region_ref_uv[:, None, :], region_couple)[:, 0]
@@ -787,9 +802,7 @@ def _visible_parts(surface, couple_pixel, couples, frames, edges, tracer, arcs: 
     piece_region = busy[piece_region]
     piece_couple = region_couple[piece_region]
     whole_regions = np.concatenate([plain, busy[whole]])
-    uv = np.stack([region_ref_uv[piece_region],
-                   _directions_to_uv(couples, frames, piece_couple, p_start),
-                   _directions_to_uv(couples, frames, piece_couple, p_end)], axis=1)
+    uv = _fan_triangles(couples, frames, piece_couple, region_ref_uv[piece_region], p_start, p_end)
     polygons = (region_couple[whole_regions], trim(region_uv[whole_regions], region_count[whole_regions]),
                 region_count[whole_regions])
     return uv, piece_couple, sign, polygons
