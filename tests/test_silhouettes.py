@@ -220,6 +220,31 @@ def test_arrangement_kernel_on_hand_made_arcs():
     assert inconsistent == 0 and not whole[2]
 
 
+def test_arcs_through_the_lights_corners():
+    """The depth inside the light carries from one light edge to the next over their shared vertex, except
+    where an arc passes through that vertex: square light [-1, 1]^2 on z = 1, R at (-0.3, 0.4). Couple 0:
+    an arc along the diagonal y = x, through two corners, hides the half below it (area 2 visible).
+    Couple 1: an arc from the corner (1, -1) to (0, 1) hides the triangle right of it (area 3 visible).
+    Couple 2: both: the triangle's part above the diagonal, (1, 1), (0, 1), (1/3, 1/3), of area 1/3, hides
+    more (area 5/3 visible)."""
+    from lazyvis_addon.core.arrangement import visible_fans
+    square = np.array([[-1.0, -1.0, 1.0], [1.0, -1.0, 1.0], [1.0, 1.0, 1.0], [-1.0, 1.0, 1.0]])
+    light_dirs = np.repeat(square[None], 3, axis=0)
+    reference = np.repeat([[-0.3, 0.4, 1.0]], 3, axis=0)
+    diagonal = ((-2.0, -2.0, 1.0), (2.0, 2.0, 1.0))
+    through_corner = ((1.5, -2.0, 1.0), (-0.5, 2.0, 1.0))
+    rows = [(0, *diagonal), (1, *through_corner), (2, *diagonal), (2, *through_corner)]
+    a = np.array([r[1] for r in rows])
+    b = np.array([r[2] for r in rows])
+    arcs = silhouettes.Arcs(np.array([r[0] for r in rows]), a, b, np.cross(a, b), np.full(4, 0.25),
+                            np.full(4, 0.75), np.ones(4, np.int64))  # both arcs are inside for t in 0.25 .. 0.75
+    couple, start, end, sign, whole, inconsistent = visible_fans(arcs, light_dirs, np.full(3, 4), reference,
+                                                                 np.zeros(3, np.int64))
+    area = fan_area(couple, start, end, sign, reference, 3) + 4.0 * whole
+    np.testing.assert_allclose(area, [2.0, 3.0, 5.0 / 3.0], atol=1e-12)
+    assert inconsistent == 0
+
+
 @pytest.mark.parametrize("flip", [False, True])
 def test_normal_cones_drop_only_edges_the_exact_test_drops(flip, monkeypatch):
     """Detection skips a node whose faces all face a receiver group, or one receiver, one way

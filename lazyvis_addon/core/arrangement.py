@@ -181,6 +181,17 @@ def _near_depth(seg_start, seg_end, t_mid, own, first, n, start, end, normal, ju
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _clear_of_planes(vertex, values, lengths, n):
+    """No arc's plane passes within CLEAN_MARGIN (about radians) of ``vertex``: ``values`` (n,) are the
+    planes' values there (``_split``'s ``va``), ``lengths[:, 2]`` their normals' lengths."""
+    size = CLEAN_MARGIN * _norm(vertex)
+    clear = True
+    for jj in range(n):
+        clear &= abs(values[jj]) > size * lengths[jj, 2]
+    return clear
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _breakpoints(seg_start, seg_end, low, high, skip, first, n, start, end, normal, lengths, splits, split_arc,
                  split_clean, va, vb, point, candidates):
     """The carrier seg_start -> seg_end's part low .. high cut where the arcs (not ``skip``) cross it: the
@@ -265,16 +276,20 @@ def _fans(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_dirs
         count = light_count[c]
         n_edge_pieces = 0
         visible_edges = 0
+        carried, carried_known = 0, False
         for k in range(count):
             seg_start = light_dirs[c, k]
             seg_end = light_dirs[c, k + 1 if k + 1 < count else 0]
             cuts = _breakpoints(seg_start, seg_end, 0.0, 1.0, -1, first, n, start, end, normal, lengths, splits,
                                 split_arc, split_clean, va, vb, point, candidates)
-            d_near, known = 0, False
+            # D on the inside carries over the vertex from the last edge's last piece, unless an arc's plane
+            # passes near the vertex (then an arc may cross there, unseen by either edge's splits).
+            d_near, known = carried, carried_known and _clear_of_planes(seg_start, va, lengths, n)
             for q in range(cuts - 1):
                 t0, t1 = splits[q], splits[q + 1]
-                d_near, known = _step_depth(d_near, known, q, splits, split_arc, split_clean, first, jump, ref_value,
-                                            va)
+                if q > 0:
+                    d_near, known = _step_depth(d_near, known, q, splits, split_arc, split_clean, first, jump,
+                                                ref_value, va)
                 if not t1 > t0 + MIN_PIECE:
                     continue
                 if not known:
@@ -289,6 +304,7 @@ def _fans(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_dirs
                 edge_seen[n_edge_pieces] = d_near <= 0
                 visible_edges += d_near <= 0
                 n_edge_pieces += 1
+            carried, carried_known = d_near, known
         hidden_edges = n_edge_pieces - visible_edges
         is_whole = (hidden_edges + 1 < visible_edges) and n > 0
         whole[c] = is_whole
