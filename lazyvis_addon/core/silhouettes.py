@@ -778,14 +778,13 @@ def _visible_parts(surface, couple_pixel, couples, frames, edges, tracer, arcs: 
         # The mode of R's count and all probes' estimates, in two rounds: where R and the first two probes
         # agree, that value is the mode of all five whatever the other two give (three of five), so their
         # rays are cast only where the first three differ.
-        first = PROBES_FIRST
         estimates = np.concatenate([depth[crossed_regions][:, None],
-                                    probe_estimates(crossed_regions, list(range(first)))], axis=1)
+                                    probe_estimates(crossed_regions, list(range(PROBES_FIRST)))], axis=1)
         assert 2 * estimates.shape[1] > len(_PROBE_WEIGHTS) + 1  # a unanimous first round is a majority
         split = np.flatnonzero((estimates != estimates[:, :1]).any(axis=1))
         decided = estimates[:, 0].copy()
         if len(split):
-            rest = probe_estimates(crossed_regions[split], list(range(first, len(_PROBE_WEIGHTS))))
+            rest = probe_estimates(crossed_regions[split], list(range(PROBES_FIRST, len(_PROBE_WEIGHTS))))
             decided[split] = _most_common(np.concatenate([estimates[split], rest], axis=1))
         depth[crossed_regions] = decided
 
