@@ -118,7 +118,8 @@ def _split(seg_start, seg_end, first, n, start, end, normal, lengths, skip, spli
     cross the segment seg_start -> seg_end, with SPLIT_SLACK (as ``_on_arc``), the arc of each
     (``split_arc``) and whether the crossing is clean (``split_clean``, see CLEAN_MARGIN). ``lengths``
     (n, 3): |start|, |end|, |normal| of each arc. Also leaves each arc's plane's values at the segment's
-    ends in ``va``, ``vb`` (n,), for ``_near_depth``; ``point`` (3,) is scratch."""
+    ends in ``va``, ``vb`` (n,), for ``_near_depth``; ``point`` (3,) and ``candidates`` (n + 1,) int64 are
+    scratch."""
     count = 0
     reach = _norm(seg_start) + _norm(seg_end)
     a0, a1, a2 = seg_start[0], seg_start[1], seg_start[2]
@@ -157,7 +158,8 @@ def _near_depth(seg_start, seg_end, t_mid, own, first, n, start, end, normal, ju
                 va, vb, mid, point, candidates):
     """D on the reference side of a piece: D(R) plus the jumps of the arcs (not ``own``) that the arc from
     R to the piece's midpoint crosses; which side of an arc's plane the midpoint lies on is interpolated
-    from the carrier's end values ``va``, ``vb`` (n,) (``_split``'s). ``mid``, ``point`` (3,): scratch."""
+    from the carrier's end values ``va``, ``vb`` (n,) (``_split``'s). ``mid``, ``point`` (3,) and
+    ``candidates`` (n + 1,) int64: scratch."""
     for k in range(3):
         mid[k] = seg_start[k] + t_mid * (seg_end[k] - seg_start[k])
     d = depth
