@@ -6,8 +6,8 @@
 
 from .progress import Progress, RenderCancelled
 from .render import BACKGROUND_DEPTH, RenderOutput, render
-from .scene import Camera, Lights, Materials, Scene
+from .scene import Camera, FacingLights, Lights, Materials, Scene
 from .settings import INTEGRATORS, Settings
 
-__all__ = ["BACKGROUND_DEPTH", "Camera", "INTEGRATORS", "Lights", "Materials", "Progress", "RenderCancelled",
+__all__ = ["BACKGROUND_DEPTH", "Camera", "FacingLights", "INTEGRATORS", "Lights", "Materials", "Progress", "RenderCancelled",
            "RenderOutput", "Scene", "Settings", "render"]

@@ -38,6 +38,15 @@ class LightFrames:
     radiance : (L, 3) float64
     two_sided : (L,) bool
     area : (L,) float64          m^2.
+
+    Point, spot and sun lights (``facing``) follow the polygon lights as virtual lights (three planes per
+    lamp, one per sun) whose polygon is built per receiver (``facing.cap_polygons``); for them ``uv`` and
+    ``vertices`` hold a polygon containing every receiver's, and
+    kind : (L,) int64            -1 for polygon lights, else FACING_DISK / FACING_SPHERE / FACING_SUN.
+    slot, source : (L,) int64    the lamp's plane (0..2) and the row of ``Scene.facing`` (-1 for polygons).
+    cap_centre, cap_radius       (L, 3), (L,): the lamp's centre and radius (a sun's direction, half-angle).
+    spot_frame, spot_cos_half, spot_smooth   (L, 3, 3), (L,), (L,): the spot cone (``facing.spot_mask``).
+    scene_light : (L,) int64     the light of passes and statistics (polygon lights, then facing lights).
     """
 
     origin: np.ndarray
@@ -50,13 +59,64 @@ class LightFrames:
     radiance: np.ndarray
     two_sided: np.ndarray
     area: np.ndarray
+    kind: np.ndarray | None = None
+    slot: np.ndarray | None = None
+    source: np.ndarray | None = None
+    cap_centre: np.ndarray | None = None
+    cap_radius: np.ndarray | None = None
+    spot_frame: np.ndarray | None = None
+    spot_cos_half: np.ndarray | None = None
+    spot_smooth: np.ndarray | None = None
+    scene_light: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        count = len(self.vertex_count)
+        defaults = dict(kind=np.full(count, -1, np.int64), slot=np.zeros(count, np.int64),
+                        source=np.full(count, -1, np.int64), cap_centre=np.zeros((count, 3)),
+                        cap_radius=np.zeros(count), spot_frame=np.broadcast_to(np.eye(3), (count, 3, 3)).copy(),
+                        spot_cos_half=np.full(count, -2.0), spot_smooth=np.zeros(count),
+                        scene_light=np.arange(count, dtype=np.int64))
+        for name, value in defaults.items():
+            if getattr(self, name) is None:
+                setattr(self, name, value)
 
     def __len__(self) -> int:
         return len(self.vertex_count)
 
+    @property
+    def any_facing(self) -> bool:
+        return bool((self.kind >= 0).any())
 
-def light_frames(lights: Lights) -> LightFrames:
-    """Frames of validated lights (see ``Scene.validated``)."""
+
+def light_frames(lights: Lights, facing=None, centre: np.ndarray | None = None, extent: float = 1.0
+                 ) -> LightFrames:
+    """Frames of validated lights (see ``Scene.validated``): the polygon lights, then the virtual lights of
+    ``facing`` (FacingLights; ``centre`` (3,) and ``extent`` the scene's bounding-box centre and diagonal)."""
+    frames = _polygon_frames(lights)
+    if facing is None or len(facing) == 0:
+        return frames
+    from .facing import facing_frames
+    extra = facing_frames(facing, np.zeros(3) if centre is None else np.asarray(centre, np.float64), extent)
+    width = max(frames.uv.shape[1], extra["uv"].shape[1])
+    n_polygons = len(frames)
+
+    def padded(array, k):
+        return np.concatenate([array, np.repeat(array[:, -1:], k - array.shape[1], axis=1)], axis=1) \
+            if array.shape[1] < k else array
+
+    joined = {}
+    for name in ("origin", "tangent", "bitangent", "normal", "radiance", "two_sided", "area", "kind", "slot",
+                 "cap_centre", "cap_radius", "spot_frame", "spot_cos_half", "spot_smooth"):
+        joined[name] = np.concatenate([getattr(frames, name), extra[name]])
+    joined["uv"] = np.concatenate([padded(frames.uv, width), padded(extra["uv"], width)])
+    joined["vertices"] = np.concatenate([padded(frames.vertices, width), padded(extra["vertices"], width)])
+    joined["vertex_count"] = np.concatenate([frames.vertex_count, np.full(len(extra["kind"]), extra["uv"].shape[1])])
+    joined["source"] = np.concatenate([frames.source, extra["source"]])
+    joined["scene_light"] = np.concatenate([frames.scene_light, n_polygons + extra["source"]])
+    return LightFrames(**joined)
+
+
+def _polygon_frames(lights: Lights) -> LightFrames:
     vertices = np.asarray(lights.vertices, dtype=np.float64)
     newell = newell_normal(vertices)
     area = 0.5 * np.linalg.norm(newell, axis=1)
@@ -502,7 +562,16 @@ def receiver_light(position: np.ndarray, geometric_normal: np.ndarray, shading_n
     # Only as wide as the widest light involved: frames pad every light to the largest polygon (a disk).
     width = max(int(frames.vertex_count[light].max()), 3) if len(light) else 3
     horizons = plane_lines(np.stack([geometric_normal, shading_normal], axis=1), rel, light, frames)  # (N, 2, 3)
-    uv, count = clip_by_lines(frames.uv[light, :width], np.where(lit, frames.vertex_count[light], 0), horizons)
+    polygon_uv, polygon_count = frames.uv[light, :width], np.where(lit, frames.vertex_count[light], 0)
+    facing_rows = np.flatnonzero(frames.kind[light] >= 0)
+    if len(facing_rows):  # point, spot and sun lights: each receiver's own polygon (``facing``)
+        from .facing import cap_polygons
+        cap_uv, cap_count, _ = cap_polygons(frames, light[facing_rows], position[facing_rows])
+        polygon_uv = polygon_uv.copy()
+        polygon_uv[facing_rows] = cap_uv[:, :width]
+        polygon_count = polygon_count.copy()
+        polygon_count[facing_rows] = np.where(lit[facing_rows], cap_count, 0)
+    uv, count = clip_by_lines(polygon_uv, polygon_count, horizons)
     uv = trim(uv, count)
     local = np.stack([np.einsum("nk,nk->n", rel, frames.tangent[light]),
                       np.einsum("nk,nk->n", rel, frames.bitangent[light]), height], axis=1)

@@ -19,6 +19,7 @@ from . import rng
 from .blocker_map import BlockerMap, first_blocker
 from .blockers import BlockerPolygons, silhouette_planes
 from .bsdf import SurfaceBsdf
+from .facing import spot_mask, taken_planes
 from .geometry import (PLANE_EPS, LightFrames, ReceiverLight, blocker_in_front_of_light, clip_convex, cone_planes,
                        pad_to, plane_lines, polygon_area_2d, projected_solid_angle_uv, receiver_light, split_convex, trim)
 from .ggx import ROUGHNESS_SQ_THRESHOLD, alpha_from_roughness, ggx_reflection_pdf, sample_ggx_reflection
@@ -71,6 +72,9 @@ def couples_for(surface: SurfacePoints, frames: LightFrames, exclude: np.ndarray
     if exclude is not None:
         mask &= ~exclude
     pixel, light = np.nonzero(mask)
+    if frames.any_facing:  # a lamp's receiver takes one of its three planes
+        keep = taken_planes(frames, light, surface.position[pixel])
+        pixel, light = pixel[keep], light[keep]
     setup = receiver_light(surface.position[pixel], surface.geometric_normal[pixel], surface.shading_normal[pixel],
                            light, frames)
     lit = setup.count >= 3
@@ -743,6 +747,8 @@ def reflected_radiance(n_points: int, frames: LightFrames, couples: ReceiverLigh
     radiance = np.zeros((n_points, 3))
     if len(couple_pixel):
         contribution = frames.radiance[couples.light] * weights
+        if frames.any_facing:  # spot cones (1 elsewhere)
+            contribution = contribution * spot_mask(frames, couples.light, couples.receiver_in_light)[:, None]
         for channel in range(3):  # colour channels
             radiance[:, channel] = np.bincount(couple_pixel, weights=contribution[:, channel], minlength=n_points)
     return radiance

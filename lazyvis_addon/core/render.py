@@ -30,7 +30,7 @@ from .terminator import terminator_couples
 from .progress import Progress
 from .scene import Scene
 from .settings import Settings
-from .surface import SurfacePoints, scene_extent, shade_hits
+from .surface import SurfacePoints, scene_centre, scene_extent, shade_hits
 from .trace import RayTracer
 
 # Depth written where no surface is seen (Blender's convention for an empty Z pass).
@@ -81,15 +81,15 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
     camera = scene.camera
     height, width = camera.window_shape
     n_pixels = height * width
-    stats: dict = {"triangles": len(scene.triangles), "lights": len(scene.lights), "pixels": n_pixels}
-    if len(scene.lights) == 0:
+    stats: dict = {"triangles": len(scene.triangles), "lights": scene.light_count, "pixels": n_pixels}
+    if scene.light_count == 0:
         progress.warn("the scene has no lights: surfaces render black")
 
     progress.begin_stage("Building BVH")
     tracer = RayTracer(scene.triangles)
     extent = scene_extent(scene)
 
-    frames = light_frames(scene.lights)
+    frames = light_frames(scene.lights, scene.facing, scene_centre(scene), extent)
     pixel_global = _global_pixels(camera)
     polygons = None  # the silhouettes need no blocker polygons (nor their convex parts' setup)
     if not settings.uses_silhouettes:
@@ -128,6 +128,8 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
             blockers = reference_blocker_map(surface, frames, polygons, (height, width), settings, progress)
             stats.update(blockers.stats)
 
+    if frames.any_facing:
+        _warn_clamped_caps(surface, frames, progress)
     verify = lazy and settings.verify_rays > 0 and len(frames) > 0
     radiance, pass2_stats, missed = _illuminate(surface, frames, polygons, tracer, blockers, settings, pixel_global,
                                                 progress, scene.materials, verify, edges)
@@ -199,7 +201,7 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
             resolved = (pixels, pooled, counts)
 
     progress.begin_stage("Composing passes")
-    output = _compose(scene, surface, radiance, blockers, settings, (height, width), resolved)
+    output = _compose(scene, frames, surface, radiance, blockers, settings, (height, width), resolved)
     progress.end_stage()
     stats["rays_cast"] = tracer.n_rays_cast
     stats["seconds"] = time.perf_counter() - started
@@ -554,7 +556,7 @@ def _pool_with_coverage(scene: Scene, tracer, surface: SurfacePoints, radiance: 
                         coverage, lattice_density=1.0)
 
 
-def _compose(scene: Scene, surface: SurfacePoints, radiance: np.ndarray, blockers: BlockerMap | None,
+def _compose(scene: Scene, frames, surface: SurfacePoints, radiance: np.ndarray, blockers: BlockerMap | None,
              settings: Settings, shape: tuple[int, int], resolved=None) -> RenderOutput:
     """The passes of the window; ``resolved`` = (pixels, (P, 4) RGBA, (P,) samples) replaces anti-aliased
     pixels."""
@@ -570,13 +572,30 @@ def _compose(scene: Scene, surface: SurfacePoints, radiance: np.ndarray, blocker
     depth[hit] = planar_depth(scene.camera, surface.position[hit])
     normal = np.zeros((n_pixels, 3), np.float32)
     normal[hit] = surface.shading_normal[hit]
-    n_lights = len(scene.lights)
+    n_lights = scene.light_count
     if blockers is not None:
         count = blockers.count_per_pixel(n_pixels)
         umbra = blockers.umbra
+        if umbra.shape[1] != n_lights:  # virtual lights (a lamp's three planes) fold into their lamp
+            folded = np.zeros((n_pixels, n_lights), bool)
+            for light, target in enumerate(frames.scene_light):  # frames: a handful
+                folded[:, target] |= umbra[:, light]
+            umbra = folded
     else:
         count = np.zeros(n_pixels, np.int32)
         umbra = np.zeros((n_pixels, n_lights), bool)
     return RenderOutput(combined.reshape(height, width, 4), count.reshape(height, width),
                         umbra.reshape(height, width, n_lights), depth.reshape(height, width),
                         normal.reshape(height, width, 3), sample_count.reshape(height, width))
+
+
+def _warn_clamped_caps(surface: SurfacePoints, frames, progress: Progress) -> None:
+    """One warning naming the point and spot lights that some visible point lies too close to (``facing``'s
+    MAX_HALF_ANGLE: it sees less of the lamp than Cycles there)."""
+    from .facing import too_close
+    points = surface.position[surface.hit]
+    close = sorted({int(frames.source[light]) for light in np.flatnonzero(frames.kind >= 0)  # a handful
+                    if too_close(frames, light, points).any()})
+    if close:
+        progress.warn("surfaces closer to a point or spot light than 1.7 times its radius get less of its light "
+                      f"than in Cycles (point/spot/sun light {', '.join(str(i) for i in close)})")

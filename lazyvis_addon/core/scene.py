@@ -9,6 +9,7 @@ Conventions follow Blender: the camera looks along its local -Z with +Y up; imag
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -172,6 +173,96 @@ class Lights:
         return Lights(self.vertices[keep], self.vertex_count[keep], self.radiance[keep], self.two_sided[keep])
 
 
+# Kinds of ``FacingLights``: how the cap of directions a receiver sees is sized.
+FACING_DISK, FACING_SPHERE, FACING_SUN = 0, 1, 2
+FACING_KINDS = {"disk": FACING_DISK, "sphere": FACING_SPHERE, "sun": FACING_SUN}
+
+
+@dataclass
+class FacingLights:
+    """Lights seen as a cap of directions that faces each shading point: Blender's point, spot and sun lights.
+
+    Seen from a receiver x, each is a cap of uniform radiance (``facing`` builds its polygon per receiver):
+    a disk of radius r facing x (a point or spot lamp with Soft Falloff on, Blender's default), half-angle
+    atan(r / d) about the centre, d = |centre - x|; a sphere of radius r (Soft Falloff off), asin(r / d);
+    a sun, half-angle ``radius`` about ``centre`` (then the unit direction towards the sun). Radius 0 is a
+    hard light: a cap of ``facing.HARD_ANGLE``.
+
+    Attributes
+    ----------
+    kind : (F,) int64           FACING_DISK, FACING_SPHERE or FACING_SUN.
+    centre : (F, 3) float64     the lamp's centre (m); for a sun the direction towards it (any length).
+    radius : (F,) float64       the lamp's radius (m); for a sun the cap's half-angle (radians).
+    intensity : (F, 3) float64  per colour channel: a lamp's intensity I (W/sr; P / (4 pi) for Blender's
+                                power P), a sun's irradiance E (W/m^2, Blender's Strength). The cap's
+                                radiance is I / (pi r^2), or E / (pi sin^2(half-angle)).
+    spot_frame : (F, 3, 3)      world offsets from the centre to the spot's local axes with its scale divided
+                                out (local = spot_frame @ (x - centre)); the cone opens along local -Z.
+    spot_cos_half : (F,)        cos(Spot Size / 2); below -1: no cone (a point lamp or a sun).
+    spot_smooth : (F,)          Spot Blend * (1 - cos_half): the width of the mask's smoothstep in cos.
+    """
+
+    kind: np.ndarray
+    centre: np.ndarray
+    radius: np.ndarray
+    intensity: np.ndarray
+    spot_frame: np.ndarray | None = None
+    spot_cos_half: np.ndarray | None = None
+    spot_smooth: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        self.kind = np.asarray(self.kind, dtype=np.int64).reshape(-1)
+        count = len(self.kind)
+        self.centre = np.asarray(self.centre, dtype=np.float64).reshape(count, 3)
+        self.radius = np.asarray(self.radius, dtype=np.float64).reshape(count)
+        self.intensity = np.asarray(self.intensity, dtype=np.float64).reshape(count, 3)
+        self.spot_frame = np.broadcast_to(np.eye(3), (count, 3, 3)).copy() if self.spot_frame is None else \
+            np.asarray(self.spot_frame, dtype=np.float64).reshape(count, 3, 3)
+        self.spot_cos_half = np.full(count, -2.0) if self.spot_cos_half is None else \
+            np.asarray(self.spot_cos_half, dtype=np.float64).reshape(count)
+        self.spot_smooth = np.zeros(count) if self.spot_smooth is None else \
+            np.asarray(self.spot_smooth, dtype=np.float64).reshape(count)
+
+    @classmethod
+    def empty(cls) -> "FacingLights":
+        return cls(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)))
+
+    def spot(self, frame, size: float, blend: float) -> "FacingLights":
+        """These lamps (one or more) as spots: ``frame`` (3, 3) world offsets to the spot's scaled local axes,
+        Spot Size (full cone angle, radians) and Spot Blend (0..1)."""
+        cos_half = math.cos(0.5 * min(max(size, 0.0), math.pi))
+        count = len(self)
+        return FacingLights(self.kind, self.centre, self.radius, self.intensity,
+                            np.broadcast_to(np.asarray(frame, dtype=np.float64), (count, 3, 3)).copy(),
+                            np.full(count, cos_half), np.full(count, min(max(blend, 0.0), 1.0) * (1.0 - cos_half)))
+
+    @classmethod
+    def point(cls, centre, radius: float, intensity, soft_falloff: bool = True) -> "FacingLights":
+        """One point lamp: centre (3,), radius (m), intensity (3,) W/sr per colour channel (P / (4 pi))."""
+        return cls([FACING_DISK if soft_falloff else FACING_SPHERE], [centre], [radius],
+                   np.broadcast_to(np.asarray(intensity, dtype=np.float64), (3,))[None])
+
+    @classmethod
+    def sun(cls, towards, angle: float, irradiance) -> "FacingLights":
+        """One sun: the direction towards it (3,), its angular diameter (radians), irradiance (3,) W/m^2."""
+        return cls([FACING_SUN], [towards], [0.5 * angle],
+                   np.broadcast_to(np.asarray(irradiance, dtype=np.float64), (3,))[None])
+
+    @classmethod
+    def concat(cls, parts: list["FacingLights"]) -> "FacingLights":
+        if not parts:
+            return cls.empty()
+        return cls(*(np.concatenate([getattr(p, name) for p in parts]) for name in
+                     ("kind", "centre", "radius", "intensity", "spot_frame", "spot_cos_half", "spot_smooth")))
+
+    def __len__(self) -> int:
+        return len(self.kind)
+
+    def subset(self, keep: np.ndarray) -> "FacingLights":
+        return FacingLights(self.kind[keep], self.centre[keep], self.radius[keep], self.intensity[keep],
+                            self.spot_frame[keep], self.spot_cos_half[keep], self.spot_smooth[keep])
+
+
 @dataclass
 class Materials:
     """Material table, indexed by ``Scene.material_index``.
@@ -284,6 +375,8 @@ class Scene:
         Cycles' Shadow Terminator Geometry Offset of each triangle's object (0 to 1; Blender's default
         0.1): shadow rays leaving smooth-shaded triangles near grazing light start from the smooth surface
         the vertex normals describe, lifted off the flat triangle (``terminator.terminator_lift``). None: 0.
+    facing : FacingLights
+        Point, spot and sun lights (after ``lights`` in the light order of passes and statistics).
     """
 
     triangles: np.ndarray
@@ -296,6 +389,7 @@ class Scene:
     corner_uvs: np.ndarray | None = None
     textures: list = field(default_factory=list)
     terminator_offset: np.ndarray | None = None
+    facing: FacingLights = field(default_factory=FacingLights.empty)
 
     def __post_init__(self) -> None:
         self.triangles = _as_float_array("triangles", self.triangles, (3, 3)) if len(np.asarray(self.triangles)) \
@@ -387,8 +481,14 @@ class Scene:
         parameters = dict(materials.arrays(), albedo=albedo, emission=emission, texture_index=texture_index)
         parameters["metallic"] = np.clip(parameters["metallic"], 0.0, 1.0)
         parameters["roughness"] = np.clip(parameters["roughness"], 0.0, 1.0)
+        facing = _validated_facing(self.facing, progress)
         return Scene(triangles, material_index, Materials(**parameters), lights, self.camera,
-                     self.background, shading_normals, corner_uvs, list(self.textures), terminator_offset)
+                     self.background, shading_normals, corner_uvs, list(self.textures), terminator_offset, facing)
+
+    @property
+    def light_count(self) -> int:
+        """Polygon lights and facing lights: the lights of passes and statistics."""
+        return len(self.lights) + len(self.facing)
 
     # -- files ---------------------------------------------------------------------------------------
     def save_npz(self, path) -> None:
@@ -410,6 +510,9 @@ class Scene:
             arrays["corner_uvs"] = self.corner_uvs
         if self.terminator_offset is not None:
             arrays["terminator_offset"] = self.terminator_offset
+        if len(self.facing):
+            for name in FACING_ARRAYS:
+                arrays["facing_" + name] = getattr(self.facing, name)
         for index, texture in enumerate(self.textures):
             arrays[f"texture_{index}_texels"] = texture.texels
             arrays[f"texture_{index}_options"] = np.array([str(int(texture.srgb)), texture.interpolation,
@@ -431,7 +534,8 @@ class Scene:
                             str(data["projection"]) if "projection" in data else "perspective",
                             data["screen_window"], window)
             count = len(data["light_vertex_count"])
-            lights = Lights(np.array(data["light_vertices"], dtype=np.float64).reshape(count, -1, 3),
+            lights = Lights(np.array(data["light_vertices"], dtype=np.float64).reshape(count, -1, 3) if count
+                            else np.zeros((0, 3, 3)),
                             np.array(data["light_vertex_count"], dtype=np.int64),
                             np.array(data["light_radiance"], dtype=np.float64).reshape(count, 3),
                             np.array(data["light_two_sided"], bool) if "light_two_sided" in data
@@ -451,7 +555,31 @@ class Scene:
                        np.array(data["background"]) if "background" in data else np.zeros(3),
                        np.array(data["shading_normals"]) if "shading_normals" in data else None,
                        np.array(data["corner_uvs"]) if "corner_uvs" in data else None, textures,
-                       np.array(data["terminator_offset"]) if "terminator_offset" in data else None)
+                       np.array(data["terminator_offset"]) if "terminator_offset" in data else None,
+                       FacingLights(*(np.array(data["facing_" + name]) for name in FACING_ARRAYS))
+                       if "facing_kind" in data else FacingLights.empty())
+
+
+FACING_ARRAYS = ("kind", "centre", "radius", "intensity", "spot_frame", "spot_cos_half", "spot_smooth")
+
+
+def _validated_facing(facing: FacingLights, progress: Progress) -> FacingLights:
+    """Check point, spot and sun lights (finite, known kind, radius >= 0, intensity >= 0); drop dark ones and
+    suns without a direction with a warning."""
+    if len(facing) == 0:
+        return facing
+    for name in FACING_ARRAYS[1:]:
+        _require_finite(f"point/spot/sun light {name.replace('_', ' ')}", np.asarray(getattr(facing, name))[None])
+    if not np.isin(facing.kind, list(FACING_KINDS.values())).all():
+        raise ValueError(f"facing light kinds must be one of {sorted(FACING_KINDS.values())}")
+    if (facing.radius < 0).any() or (facing.intensity < 0).any():
+        raise ValueError("point/spot/sun light radius and intensity must not be negative")
+    directionless = (facing.kind == FACING_SUN) & ~(np.linalg.norm(facing.centre, axis=1) > 0)
+    dark = facing.intensity.max(axis=1) <= 0
+    if (dark | directionless).any():
+        progress.warn(f"dropped {int((dark | directionless).sum())} point/spot/sun light(s) of zero power or "
+                      "without a direction")
+    return facing.subset(~(dark | directionless))
 
 
 def _validated_lights(lights: Lights, progress: Progress) -> Lights:

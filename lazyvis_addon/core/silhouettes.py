@@ -42,6 +42,7 @@ from numba import njit
 from . import arcs as arcs_module, arrangement as arrangement_module, detection as detection_module
 from .arcs import Arcs, _cone_planes, cone_of_light
 from .arrangement import compile_arrangement, jumps_between, visible_fans
+from .facing import compile_facing
 from .detection import (HULL_BASE, HULL_BOX_HIGH, HULL_BOX_LOW, HULL_EPS, HULL_HEIGHT, HULL_HIGH, HULL_LOW,
                         HULL_SIDE_NORMAL, HULL_SIDE_OFFSET, HULL_SIDE_VALID, HULL_TOWARD, HULL_WIDTH, compile_detection,
                         detect_arcs)
@@ -378,7 +379,8 @@ def _morton(points: np.ndarray) -> np.ndarray:
 # ------------------------------------------------------------------------------------------------------
 
 def hull_table(frames: LightFrames, box_low: np.ndarray, box_high: np.ndarray, light: np.ndarray, side: np.ndarray,
-               height: np.ndarray) -> np.ndarray:
+               height: np.ndarray, uv_low: np.ndarray | None = None, uv_high: np.ndarray | None = None
+               ) -> np.ndarray:
     """The tests of the hull of receiver boxes and their lights, packed in rows for detection
     (``detection.HULL_*`` name the columns), (N, detection.HULL_WIDTH) float64.
 
@@ -388,6 +390,9 @@ def hull_table(frames: LightFrames, box_low: np.ndarray, box_high: np.ndarray, l
     light : (N,) int64            the light they see.
     side : (N,) float64           +1 / -1: the side of the light the receivers are on.
     height : (N,) float64         the receivers' largest height above the light.
+    uv_low, uv_high : (N, 2) float64 or None   a (u, v) rectangle holding the receivers' clipped lights
+                                  (tighter than the light's own: a sun's, a lamp's plane, a horizon); None:
+                                  the light's bounding rectangle.
 
     An edge that crosses the light from a point of a box lies in the bounding box of the box and the
     light, inside the hull's four side planes, and has a point in front of the light's plane and below
@@ -396,25 +401,31 @@ def hull_table(frames: LightFrames, box_low: np.ndarray, box_high: np.ndarray, l
     beyond it meets no segment from the box to the light.
     """
     table = np.empty((len(light), HULL_WIDTH))
+    if uv_low is None:
+        real = np.arange(frames.uv.shape[1])[None, :] < frames.vertex_count[:, None]
+        uv_low = np.stack([np.where(real, frames.uv[..., k], np.inf).min(axis=1) for k in range(2)], axis=1)[light]
+        uv_high = np.stack([np.where(real, frames.uv[..., k], -np.inf).max(axis=1) for k in range(2)], axis=1)[light]
     _hull_rows(np.ascontiguousarray(box_low, np.float64), np.ascontiguousarray(box_high, np.float64),
                np.ascontiguousarray(light, np.int64), np.ascontiguousarray(side, np.float64),
                np.ascontiguousarray(height, np.float64), frames.origin, frames.tangent, frames.bitangent, frames.normal,
-               np.ascontiguousarray(frames.uv, np.float64), np.ascontiguousarray(frames.vertices, np.float64),
-               np.ascontiguousarray(frames.vertex_count, np.int64), table)
+               np.ascontiguousarray(uv_low, np.float64), np.ascontiguousarray(uv_high, np.float64), table)
     return table
 
 
 @njit(cache=True, nogil=True)
-def _hull_rows(box_low, box_high, light, side, height, origin, tangent, bitangent, normal, light_uv, vertices,
-               vertex_count, table):
+def _hull_rows(box_low, box_high, light, side, height, origin, tangent, bitangent, normal, uv_low, uv_high, table):
     corners = np.empty((8, 3))
     for n in range(len(light)):
         l = light[n]
         row = table[n]
+        u0, u1, v0, v1 = uv_low[n, 0], uv_high[n, 0], uv_low[n, 1], uv_high[n, 1]
         for k in range(3):
             low, high = box_low[n, k], box_high[n, k]
-            for v in range(vertex_count[l]):
-                low, high = min(low, vertices[l, v, k]), max(high, vertices[l, v, k])
+            for corner in range(4):  # the (u, v) rectangle's corners
+                u = u1 if corner & 1 else u0
+                v = v1 if corner & 2 else v0
+                point = origin[l, k] + u * tangent[l, k] + v * bitangent[l, k]
+                low, high = min(low, point), max(high, point)
             row[HULL_LOW + k], row[HULL_HIGH + k] = low, high
             row[HULL_TOWARD + k] = side[n] * normal[l, k]
             row[HULL_BOX_LOW + k], row[HULL_BOX_HIGH + k] = box_low[n, k], box_high[n, k]
@@ -425,10 +436,6 @@ def _hull_rows(box_low, box_high, light, side, height, origin, tangent, bitangen
             largest_high, largest_low = max(largest_high, abs(row[HULL_HIGH + k])), max(largest_low, abs(row[HULL_LOW + k]))
         row[HULL_EPS] = PLANE_EPS * (largest_high + largest_low)
         row[HULL_HEIGHT] = height[n]
-        u0, u1, v0, v1 = np.inf, -np.inf, np.inf, -np.inf
-        for v in range(vertex_count[l]):
-            u0, u1 = min(u0, light_uv[l, v, 0]), max(u1, light_uv[l, v, 0])
-            v0, v1 = min(v0, light_uv[l, v, 1]), max(v1, light_uv[l, v, 1])
         for i in range(8):
             for k in range(3):
                 corners[i, k] = box_high[n, k] if (i >> k) & 1 else box_low[n, k]
@@ -547,15 +554,16 @@ def compile_kernels() -> bool:
                     np.zeros((1, 3)), np.zeros((1, 3)), np.empty((1, 4, 3)))
     _reference_points(np.zeros((1, 3, 2)), np.zeros(1, np.int64), _REFERENCE_WEIGHTS, np.empty((1, 2)))
     one, three = np.zeros(1), np.zeros((1, 3))
-    _hull_rows(three, three, np.zeros(1, np.int64), one, one, three, three, three, three, np.zeros((1, 3, 2)),
-               np.zeros((1, 3, 3)), np.zeros(1, np.int64), np.empty((1, HULL_WIDTH)))
+    _hull_rows(three, three, np.zeros(1, np.int64), one, one, three, three, three, three, np.zeros((1, 2)),
+               np.zeros((1, 2)), np.empty((1, HULL_WIDTH)))
     _fan_triangles_kernel(np.zeros(1, np.int64), np.zeros(1, np.int64), three, three, three, three,
                           np.zeros((1, 2)), three, three, np.empty((1, 3, 2)))
     _silhouette_lights(three, np.zeros((1, 2, 3)), np.zeros((1, 2)), np.zeros((1, 2)), np.zeros((1, 2), np.int64),
                        np.zeros(1, np.int64), np.zeros((1, 3, 3)), np.zeros(1, np.int64), np.zeros(1, np.uint64))
     kernels = (detection_module._detect, *compile_regions(), arrangement_module._fans,
                arrangement_module._jumps, _cone_planes, _bounding_cones, _reference_points, _hull_rows,
-               _silhouette_lights, _fan_triangles_kernel, *compile_geometry(), *compile_terminator())
+               _silhouette_lights, _fan_triangles_kernel, *compile_geometry(), *compile_terminator(),
+               compile_facing())
     return any(kernel.stats.cache_misses for kernel in kernels)
 
 
@@ -718,8 +726,19 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
     unit_height = np.zeros(n_units)
     np.maximum.at(unit_height, unit_of, height[by_query])
     unit_query = np.repeat(np.arange(len(keys)), query_units)
-    hulls = hull_table(frames, group_low[query_group], group_high[query_group], query_light, query_side, query_height)
-    unit_hulls = hull_table(frames, unit_low, unit_high, query_light[unit_query], query_side[unit_query], unit_height)
+    # Each query's and sub-group's (u, v) rectangle around its couples' clipped lights (padding repeats a
+    # real vertex).
+    uv_low, uv_high = couples.uv.min(axis=1), couples.uv.max(axis=1)           # (Nc, 2)
+    query_uv_low, query_uv_high = np.full((len(keys), 2), np.inf), np.full((len(keys), 2), -np.inf)
+    np.minimum.at(query_uv_low, couple_query, uv_low)
+    np.maximum.at(query_uv_high, couple_query, uv_high)
+    unit_uv_low, unit_uv_high = np.full((n_units, 2), np.inf), np.full((n_units, 2), -np.inf)
+    np.minimum.at(unit_uv_low, unit_of, uv_low[by_query])
+    np.maximum.at(unit_uv_high, unit_of, uv_high[by_query])
+    hulls = hull_table(frames, group_low[query_group], group_high[query_group], query_light, query_side, query_height,
+                       query_uv_low, query_uv_high)
+    unit_hulls = hull_table(frames, unit_low, unit_high, query_light[unit_query], query_side[unit_query], unit_height,
+                            unit_uv_low, unit_uv_high)
     chunks = detect_arcs(edges, LEAF_EDGES, hulls, query_light, (query_unit, query_units, unit_hulls, unit_first,
                                                                  unit_size), by_query, couples, frames, position,
                          own, cone, cone_valid, bound, reference, ARC_CHUNK)

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .scene import Scene
+from .scene import FACING_SUN, Scene
 from .terminator import terminator_lift
 from .texture import interpolate_corner_attribute
 
@@ -65,11 +65,22 @@ class SurfacePoints:
 
 def scene_extent(scene: Scene) -> float:
     """Diagonal of the bounding box of triangles and lights (world units; 1 for an empty scene)."""
-    points = [scene.triangles.reshape(-1, 3), scene.lights.vertices.reshape(-1, 3)]
+    lamps = scene.facing.centre[scene.facing.kind != FACING_SUN]
+    points = [scene.triangles.reshape(-1, 3), scene.lights.vertices.reshape(-1, 3), lamps]
     points = np.concatenate([p for p in points if len(p)]) if any(len(p) for p in points) else np.zeros((0, 3))
     if len(points) == 0:
         return 1.0
     return float(np.linalg.norm(points.max(axis=0) - points.min(axis=0))) or 1.0
+
+
+def scene_centre(scene: Scene) -> np.ndarray:
+    """Centre (3,) of the bounding box of triangles, polygon lights and lamps (the origin if empty)."""
+    lamps = scene.facing.centre[scene.facing.kind != FACING_SUN]
+    points = [p for p in (scene.triangles.reshape(-1, 3), scene.lights.vertices.reshape(-1, 3), lamps) if len(p)]
+    if not points:
+        return np.zeros(3)
+    points = np.concatenate(points)
+    return 0.5 * (points.max(axis=0) + points.min(axis=0))
 
 
 def shade_hits(scene: Scene, ray_origins: np.ndarray, ray_directions: np.ndarray, index_triangle: np.ndarray,

@@ -1,0 +1,306 @@
+"""Point, spot and sun lights: lights that face the shading point, as polygons built per receiver.
+
+Cycles 5.0.1 (measured; the README's light table): a point lamp of radius r with Soft Falloff on (Blender's default) is
+a disk of radius r always facing the shaded point; with it off, a sphere of radius r; a spot is that lamp
+times a cone mask; a sun is a disc of directions of angular diameter Angle. Seen from a receiver x, each is
+a cap of directions of uniform radiance:
+- a lamp: about c - x (c its centre, d = |c - x|), half-angle atan(r / d) (disk) or asin(r / d) (sphere),
+  radiance I / (pi r^2), I its intensity; under a disk at normal incidence that is I / (d^2 + r^2);
+- a sun: about its direction, half-angle Angle / 2, radiance E / (pi sin^2(Angle / 2)), E its irradiance.
+
+Pass 2 clips a light in its plane, in a frame fixed per light. So each facing light gets fixed planes, rows
+of ``LightFrames`` after the polygon lights (virtual lights), and every receiver a polygon in one of them:
+- a lamp three planes through its centre, normals the rows of a fixed generic rotation (so that no
+  axis-aligned face a user models lies in one); each receiver takes the plane it sees most face-on
+  (|cos| >= 1/sqrt(3)), where its polygon is where the cap's FACING_VERTICES boundary directions meet it;
+- a sun one plane facing it beyond the scene, where a receiver's polygon is a regular polygon about the
+  point straight towards the sun.
+A polygon's directions are the cap's widened so that its area matches the cap's, as a disk light's polygon
+is. Each frame's own polygon (``LightFrames.vertices``) holds every receiver's: the conservative tests
+(culling, which edges may be silhouettes, grazing) read it.
+
+Limits, stated where they apply: a receiver closer to a lamp than MAX_HALF_ANGLE allows (1.7 radii from a
+disk's centre) sees a cap of that half-angle, less light than Cycles (``clamped_receivers`` counts them for a
+warning); geometry within about a radius of a lamp's centre is clipped at the lamp's plane, not at the disk
+or sphere; radius 0 (angle 0) is a cap of HARD_ANGLE: a shadow edge far below a pixel's width.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .scene import FACING_DISK, FACING_SPHERE, FACING_SUN, FacingLights
+
+# Vertices of each receiver's polygon of a facing light (as many as Blender disk lights get).
+FACING_VERTICES = 32
+# The polygon's vertex directions lie this much further out (in tan of the half-angle) than the cap's edge:
+# a regular polygon inscribed in a circle of this radius has the circle's area.
+AREA_SCALE = math.sqrt(2.0 * math.pi / (FACING_VERTICES * math.sin(2.0 * math.pi / FACING_VERTICES)))
+# The widest cap a lamp's plane holds: a receiver sees its plane at up to acos(1/sqrt(3)) = 54.7 degrees
+# from the normal, and the cap's far edge must still meet the plane, well short of 90 degrees.
+MAX_HALF_ANGLE = math.radians(30.0)
+MAX_TILT = math.acos(1.0 / math.sqrt(3.0))
+# A sun's plane faces it: its cap may be wider (Blender allows Angle up to 180 degrees).
+MAX_SUN_HALF_ANGLE = math.radians(60.0)
+# Radius 0 and Angle 0: a cap of this half-angle (radians) seen from the scene's extent (hard shadows).
+HARD_ANGLE = 1e-4
+# A sun's plane lies this many scene extents beyond the scene's centre.
+SUN_DISTANCE = 4.0
+
+# Three orthonormal generic directions (rows; right-handed): a rotation by an irrational quaternion.
+_q = np.array([0.8186, 0.3403, 0.2744, 0.3674])
+_q /= np.linalg.norm(_q)
+_w, _x, _y, _z = _q
+LAMP_AXES = np.array([[1 - 2 * (_y * _y + _z * _z), 2 * (_x * _y - _w * _z), 2 * (_x * _z + _w * _y)],
+                      [2 * (_x * _y + _w * _z), 1 - 2 * (_x * _x + _z * _z), 2 * (_y * _z - _w * _x)],
+                      [2 * (_x * _z - _w * _y), 2 * (_y * _z + _w * _x), 1 - 2 * (_x * _x + _y * _y)]])
+del _q, _w, _x, _y, _z
+
+
+def effective_radius(facing: FacingLights, extent: float) -> np.ndarray:
+    """Each light's radius (m; half-angle in radians for suns), (F,) float64, radius 0 replaced by a hard
+    light's (HARD_ANGLE, times ``extent`` for lamps)."""
+    hard = np.where(facing.kind == FACING_SUN, HARD_ANGLE, HARD_ANGLE * extent)
+    return np.where(facing.radius > 0, facing.radius, hard)
+
+
+def cap_radiance(facing: FacingLights, radius: np.ndarray) -> np.ndarray:
+    """The caps' uniform radiance (F, 3), W m^-2 sr^-1, for radii from ``effective_radius``: I / (pi r^2)
+    for lamps, E / (pi sin^2(half-angle)) for suns (their cap at normal incidence gives E)."""
+    sun = facing.kind == FACING_SUN
+    half = np.minimum(radius, MAX_SUN_HALF_ANGLE)
+    area = np.where(sun, np.pi * np.sin(half) ** 2, np.pi * radius ** 2)
+    return facing.intensity / area[:, None]
+
+
+def facing_frames(facing: FacingLights, centre: np.ndarray, extent: float) -> dict:
+    """The virtual lights' frames: three per lamp, one per sun, in light order.
+
+    Parameters
+    ----------
+    facing : validated FacingLights; centre (3,) and extent: the scene's bounding-box centre and diagonal.
+
+    Returns
+    -------
+    dict of per-frame arrays (K frames): origin, tangent, bitangent, normal (K, 3); uv (K, FACING_VERTICES, 2)
+    and vertices (K, FACING_VERTICES, 3) a polygon holding every receiver's; radiance (K, 3); two_sided (K,);
+    area (K,) the polygon's; kind, slot, source (K,) int64 (the lamp's plane 0..2, the FacingLights row);
+    cap_centre (K, 3), cap_radius (K,); spot_frame (K, 3, 3), spot_cos_half, spot_smooth (K,).
+    """
+    radius = effective_radius(facing, extent)
+    radiance = cap_radiance(facing, radius)
+    sun = facing.kind == FACING_SUN
+    planes = np.where(sun, 1, 3)
+    source = np.repeat(np.arange(len(facing)), planes)
+    slot = np.arange(len(source)) - np.repeat(np.cumsum(planes) - planes, planes)
+    kind = facing.kind[source]
+    is_sun = kind == FACING_SUN
+    towards = facing.centre / np.maximum(np.linalg.norm(facing.centre, axis=1, keepdims=True), 1e-300)
+    # Lamps: the plane through the centre, normal LAMP_AXES[slot], (tangent, bitangent) the next two rows.
+    normal = LAMP_AXES[slot % 3].copy()
+    tangent = LAMP_AXES[(slot + 1) % 3].copy()
+    origin = facing.centre[source].copy()
+    # Suns: a plane facing the sun, beyond the scene; its normal points back at the scene.
+    reach = 0.5 * extent
+    if is_sun.any():
+        w = towards[source[is_sun]]
+        normal[is_sun] = -w
+        helper = np.where(np.abs(w[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
+        t = helper - w * np.einsum("nk,nk->n", helper, w)[:, None]
+        tangent[is_sun] = t / np.linalg.norm(t, axis=1, keepdims=True)
+        origin[is_sun] = centre + SUN_DISTANCE * extent * w
+    bitangent = np.cross(normal, tangent)
+    # The circle holding every receiver's polygon, about the origin (see ``cap_polygons``): a lamp's far
+    # edge lies at d sin(a) / cos(tilt + a) <= AREA_SCALE r / cos(MAX_TILT + MAX_HALF_ANGLE) from its
+    # centre (d sin(a) <= AREA_SCALE r for the disk and the sphere, a the widened half-angle); a sun's
+    # receivers lie within half the extent of its axis, at most (SUN_DISTANCE + 1/2) extents below.
+    lamp_reach = AREA_SCALE * radius[source] / math.cos(MAX_TILT + MAX_HALF_ANGLE)
+    sun_tan = np.minimum(AREA_SCALE * np.tan(np.minimum(radius[source], MAX_SUN_HALF_ANGLE)),
+                         math.tan(MAX_SUN_HALF_ANGLE))
+    sun_reach = reach + (SUN_DISTANCE + 0.5) * extent * sun_tan
+    bound = 1.001 * np.where(is_sun, sun_reach, lamp_reach) / math.cos(math.pi / FACING_VERTICES)
+    angle = 2.0 * np.pi * np.arange(FACING_VERTICES) / FACING_VERTICES
+    uv = bound[:, None, None] * np.stack([np.cos(angle), np.sin(angle)], axis=1)[None]
+    vertices = origin[:, None] + uv[..., :1] * tangent[:, None] + uv[..., 1:] * bitangent[:, None]
+    polygon_area = 0.5 * FACING_VERTICES * np.sin(2.0 * np.pi / FACING_VERTICES) * bound ** 2
+    return dict(origin=origin, tangent=tangent, bitangent=bitangent, normal=normal, uv=uv, vertices=vertices,
+                radiance=radiance[source], two_sided=~is_sun, area=polygon_area, kind=kind, slot=slot,
+                source=source, cap_centre=np.where(is_sun[:, None], towards[source], facing.centre[source]),
+                cap_radius=radius[source], spot_frame=facing.spot_frame[source],
+                spot_cos_half=facing.spot_cos_half[source], spot_smooth=facing.spot_smooth[source])
+
+
+def cap_polygons(frames, light: np.ndarray, position: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each receiver's polygon of a facing light in that light's plane.
+
+    Parameters
+    ----------
+    frames : LightFrames; light : (N,) int64 virtual lights (``frames.kind >= 0``); position : (N, 3) receivers.
+
+    Returns
+    -------
+    uv : (N, FACING_VERTICES, 2) float64   counter-clockwise about the frame's normal;
+    count : (N,) int64                     FACING_VERTICES, or 0 where the receiver takes another of the
+                                           lamp's planes or lies inside a sphere lamp;
+    clamped : (N,) bool                    the cap was wider than the plane holds (see MAX_HALF_ANGLE).
+
+    The cap's boundary directions are a + tan (cos phi e1 + sin phi e2) (a towards the centre or the sun,
+    e1, e2 unit and normal to it, tan that of the widened half-angle); each meets the plane where the ray
+    from the receiver along it does. Compiled: as numpy passes over (N, K, 3) temporaries it was most of a
+    point-lit render's time.
+    """
+    light = np.ascontiguousarray(light, np.int64)
+    uv = np.empty((len(light), FACING_VERTICES, 2))
+    count = np.empty(len(light), np.int64)
+    clamped = np.empty(len(light), np.bool_)
+    _cap_polygons(light, np.ascontiguousarray(position, np.float64), frames.kind, frames.slot, frames.origin,
+                  frames.tangent, frames.bitangent, frames.normal, frames.cap_centre, frames.cap_radius, LAMP_AXES,
+                  AREA_SCALE, math.tan(MAX_HALF_ANGLE), math.tan(MAX_SUN_HALF_ANGLE), uv, count, clamped)
+    return uv, count, clamped
+
+
+def taken_planes(frames, light: np.ndarray, position: np.ndarray) -> np.ndarray:
+    """(N,) bool: the receivers (N, 3) that take virtual light ``light`` (N,) int64: true for polygon lights
+    and suns, and for the one plane of a lamp each receiver sees most face-on."""
+    kind = frames.kind[light]
+    out = np.ones(len(light), bool)
+    lamp = np.flatnonzero((kind == FACING_DISK) | (kind == FACING_SPHERE))
+    if len(lamp):
+        facing_on = np.abs((frames.cap_centre[light[lamp]] - position[lamp]) @ LAMP_AXES.T)
+        out[lamp] = np.argmax(facing_on, axis=1) == frames.slot[light[lamp]]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _cap_polygons(light, position, kind, slot, origin, tangent, bitangent, normal, cap_centre, cap_radius, axes,
+                  area_scale, widest_lamp, widest_sun, out_uv, out_count, out_clamped):
+    k_count = out_uv.shape[1]
+    a = np.empty(3)
+    e1 = np.empty(3)
+    e2 = np.empty(3)
+    for n in range(len(light)):
+        l = light[n]
+        sun = kind[l] == FACING_SUN
+        for k in range(3):
+            a[k] = cap_centre[l, k] if sun else cap_centre[l, k] - position[n, k]
+        distance = np.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+        out_count[n] = 0
+        out_clamped[n] = False
+        for v in range(k_count):
+            out_uv[n, v, 0] = 0.0
+            out_uv[n, v, 1] = 0.0
+        if not distance > 0:
+            continue
+        for k in range(3):
+            a[k] /= distance
+        if not sun:  # the lamp's plane this receiver sees most face-on
+            best, best_value = 0, -1.0
+            for s in range(3):
+                value = abs(a[0] * axes[s, 0] + a[1] * axes[s, 1] + a[2] * axes[s, 2])
+                if value > best_value:
+                    best, best_value = s, value
+            if best != slot[l]:
+                continue
+        radius = cap_radius[l]
+        ratio = radius / distance
+        if kind[l] == FACING_DISK:
+            tan_half = ratio
+        elif kind[l] == FACING_SPHERE:
+            if not ratio < 1.0:
+                continue  # inside the sphere
+            tan_half = ratio / np.sqrt(1.0 - ratio * ratio)
+        else:
+            tan_half = np.tan(min(radius, 0.5 * np.pi - 1e-6))
+        widest = widest_sun if sun else widest_lamp
+        tan_widened = area_scale * tan_half
+        if tan_widened > widest:
+            out_clamped[n] = True
+            tan_widened = widest
+        along_t = tangent[l, 0] * a[0] + tangent[l, 1] * a[1] + tangent[l, 2] * a[2]
+        for k in range(3):
+            e1[k] = tangent[l, k] - a[k] * along_t
+        length = np.sqrt(e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2])
+        for k in range(3):
+            e1[k] /= length
+        e2[0] = a[1] * e1[2] - a[2] * e1[1]
+        e2[1] = a[2] * e1[0] - a[0] * e1[2]
+        e2[2] = a[0] * e1[1] - a[1] * e1[0]
+        height = 0.0
+        rel_t, rel_b = 0.0, 0.0
+        for k in range(3):
+            rel = position[n, k] - origin[l, k]
+            height += rel * normal[l, k]
+            rel_t += rel * tangent[l, k]
+            rel_b += rel * bitangent[l, k]
+        good = True
+        for v in range(k_count):
+            phi = 2.0 * np.pi * v / k_count
+            c, s_ = np.cos(phi) * tan_widened, np.sin(phi) * tan_widened
+            w_n, w_t, w_b = 0.0, 0.0, 0.0
+            for k in range(3):
+                w = a[k] + c * e1[k] + s_ * e2[k]
+                w_n += w * normal[l, k]
+                w_t += w * tangent[l, k]
+                w_b += w * bitangent[l, k]
+            if not w_n * height < 0:
+                good = False  # this direction never meets the plane
+                break
+            reach = -height / w_n
+            out_uv[n, v, 0] = rel_t + reach * w_t
+            out_uv[n, v, 1] = rel_b + reach * w_b
+        if not good:
+            continue
+        doubled = 0.0
+        for v in range(k_count):
+            j = v + 1 if v + 1 < k_count else 0
+            doubled += out_uv[n, v, 0] * out_uv[n, j, 1] - out_uv[n, j, 0] * out_uv[n, v, 1]
+        if doubled < 0:  # counter-clockwise about the normal: the spokes turn by the side of the plane
+            for v in range(k_count // 2):
+                j = k_count - 1 - v
+                for k in range(2):
+                    out_uv[n, v, k], out_uv[n, j, k] = out_uv[n, j, k], out_uv[n, v, k]
+        out_count[n] = k_count
+
+
+def spot_mask(frames, light: np.ndarray, receiver_in_light: np.ndarray) -> np.ndarray:
+    """Cycles' spot cone attenuation (N,) float64 for receivers at ``receiver_in_light`` (N, 3) from the
+    lamp's centre: smoothstep((cos - cos_half) / smooth), cos the angle between the spot's local -Z and the
+    receiver's direction in the spot's scaled local frame; 1 for lights without a cone."""
+    cos_half = frames.spot_cos_half[light]
+    out = np.ones(len(light))
+    coned = np.flatnonzero(cos_half >= -1.0)
+    if len(coned) == 0:
+        return out
+    local = np.einsum("nij,nj->ni", frames.spot_frame[light[coned]], receiver_in_light[coned])
+    cosine = -local[:, 2] / np.maximum(np.linalg.norm(local, axis=1), 1e-300)
+    smooth = frames.spot_smooth[light[coned]]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.clip((cosine - cos_half[coned]) / smooth, 0.0, 1.0)
+    t = np.where(smooth > 0, t, (cosine > cos_half[coned]).astype(np.float64))
+    out[coned] = t * t * (3.0 - 2.0 * t)
+    return out
+
+
+def too_close(frames, light: int, points: np.ndarray) -> np.ndarray:
+    """(N,) bool: the points (N, 3) whose cap of virtual light ``light`` is clamped (``cap_polygons``'
+    ``clamped``): nearer a lamp's centre than MAX_HALF_ANGLE allows, outside a sphere lamp."""
+    kind = int(frames.kind[light])
+    if kind == FACING_SUN:
+        return np.zeros(len(points), bool)
+    radius = float(frames.cap_radius[light])
+    distance_sq = ((points - frames.cap_centre[light]) ** 2).sum(axis=1)
+    limit = AREA_SCALE * radius / math.tan(MAX_HALF_ANGLE)   # d (disk), sqrt(d^2 - r^2) (sphere) below this
+    if kind == FACING_SPHERE:
+        return (distance_sq > radius ** 2) & (distance_sq - radius ** 2 < limit ** 2)
+    return distance_sq < limit ** 2
+
+
+def compile_facing():
+    """Compile ``_cap_polygons`` (or load it from Numba's cache) on a one-receiver input; returns it."""
+    one, three, i = np.zeros(1), np.zeros((1, 3)), np.zeros(1, np.int64)
+    _cap_polygons(i, three, i, i, three, three, three, three, three, one, LAMP_AXES, 1.0, 1.0, 1.0,
+                  np.empty((1, FACING_VERTICES, 2)), np.empty(1, np.int64), np.empty(1, np.bool_))
+    return _cap_polygons
