@@ -32,7 +32,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..core.progress import Progress
-from ..core.scene import Camera, Lights, Materials, Scene
+from ..core.facing import MAX_SUN_HALF_ANGLE
+from ..core.scene import Camera, FacingLights, Lights, Materials, Scene
 from ..core.texture import EXTENSIONS, INTERPOLATIONS, LINEAR_SPACES, SRGB_SPACES, ImageTexture
 
 DISK_VERTICES_DEFAULT = 32
@@ -141,7 +142,7 @@ class Export:
     scene : Scene
     materials : list[MaterialRecord]    rows of ``scene.materials`` (emitting materials included: their
                                         triangles are lights, not surfaces)
-    light_names : list[str]             object name of each light in ``scene.lights`` (L,)
+    light_names : list[str]             object name of each light in ``scene.lights``, then ``scene.facing``
     counts : dict                       objects, instances, mesh triangles, emitter triangles, area lights
     """
 
@@ -614,6 +615,8 @@ class _DepsgraphReader:
         self.light_polygons: list[np.ndarray] = []
         self.light_radiance: list[np.ndarray] = []
         self.light_names: list[str] = []
+        self.facing: list[FacingLights] = []  # point, spot and sun lights
+        self.facing_names: list[str] = []
         self.skipped: dict[str, set[str]] = {}
         self.counts = {"objects": 0, "instances": 0, "mesh_triangles": 0, "emitter_triangles": 0,
                        "area_lights": 0}
@@ -781,8 +784,12 @@ class _DepsgraphReader:
     def add_light(self, obj, matrix: np.ndarray) -> None:
         light = obj.data
         name = obj.name
+        if light.type in ("POINT", "SPOT", "SUN"):
+            self.add_facing_light(obj, matrix)
+            return
         if light.type != "AREA":
-            self.skip("only area lights are supported; these lights are ignored", f"{name} ({light.type.lower()})")
+            self.skip("these lights are of a type LazyVis does not know and are ignored",
+                      f"{name} ({light.type.lower()})")
             return
         if not np.isfinite(matrix).all():
             raise ValueError(f"light '{name}' has a NaN or infinite transform")
@@ -821,6 +828,53 @@ class _DepsgraphReader:
         self.light_names.append(name)
         self.counts["area_lights"] += 1
 
+    def add_facing_light(self, obj, matrix: np.ndarray) -> None:
+        """A point, spot or sun light as a ``FacingLights`` row (the project's radiometry, measured against
+        Cycles 5.0.1: intensity P / (4 pi) for lamps, a spot being the lamp times its cone; a sun's Strength
+        is its irradiance)."""
+        light = obj.data
+        name = obj.name
+        kind = light.type.lower()
+        if not np.isfinite(matrix).all():
+            self.skip("lights with a NaN or infinite transform are ignored", name)
+            return
+        color = np.array(light.color[:3], dtype=np.float64)
+        if getattr(light, "use_temperature", False):
+            color = color * np.array(light.temperature_color[:3])
+        power = color * light.energy * 2.0 ** getattr(light, "exposure", 0.0)
+        if not power.max() > 0:
+            self.skip("lights of zero power or black colour are ignored", name)
+            return
+        if obj.visible_camera and light.type != "SUN":
+            self.skip("point and spot lights are not drawn where the camera sees them (Cycles draws a lamp of "
+                      "radius above 0 when its Ray Visibility > Camera is on)", name)
+        if not light.use_shadow:
+            self.skip("lights always cast shadows in LazyVis; Cast Shadow off is ignored", name)
+        if light.type == "SUN":
+            towards = matrix[:3, 2]  # a sun shines along its local -Z
+            if not np.linalg.norm(towards) > 0:
+                self.skip("suns with a zero-scale transform are ignored", name)
+                return
+            angle = float(light.angle)
+            if angle > 2.0 * MAX_SUN_HALF_ANGLE:
+                self.skip(f"suns wider than {math.degrees(2.0 * MAX_SUN_HALF_ANGLE):.0f} degrees are rendered at "
+                          "that angle (less light than Cycles)", name)
+            self.facing.append(FacingLights.sun(towards, angle, power))
+        else:
+            centre = matrix[:3, 3]
+            radius = float(light.shadow_soft_size)
+            lamp = FacingLights.point(centre, radius, power / (4.0 * math.pi),
+                                      soft_falloff=bool(getattr(light, "use_soft_falloff", True)))
+            if light.type == "SPOT":
+                linear = matrix[:3, :3]
+                if not abs(np.linalg.det(linear)) > 1e-18:
+                    self.skip("spot lights with a zero-scale transform are ignored", name)
+                    return
+                lamp = lamp.spot(np.linalg.inv(linear), float(light.spot_size), float(light.spot_blend))
+            self.facing.append(lamp)
+        self.facing_names.append(name)
+        self.counts[f"{kind}_lights"] = self.counts.get(f"{kind}_lights", 0) + 1
+
     # -- assembly ------------------------------------------------------------------------------------
     def finish(self, camera: Camera, background: np.ndarray) -> Export:
         progress = self.progress
@@ -856,7 +910,8 @@ class _DepsgraphReader:
                                                 for p in self.parts])
         lights, names = self.lights()
         scene = Scene(triangles, material_index, self.material_table(), lights, camera, background, normals,
-                      corner_uvs, list(self.textures), terminator_offset)
+                      corner_uvs, list(self.textures), terminator_offset, FacingLights.concat(self.facing))
+        names = names + list(self.facing_names)
         return Export(scene, list(self.materials), names, dict(self.counts))
 
     def material_table(self) -> Materials:

@@ -198,8 +198,8 @@ class LAZYVIS_LIGHT_PT_light(LazyVisPanel, bpy.types.Panel):
         layout.row().prop(light, "type", expand=True)
         layout.use_property_split = True
         layout.use_property_decorate = False
-        if light.type != 'AREA':
-            layout.label(text="LazyVis renders area lights only; this light is ignored", icon='ERROR')
+        if light.type not in {'AREA', 'POINT', 'SPOT', 'SUN'}:
+            layout.label(text="LazyVis does not render this type of light; it is ignored", icon='ERROR')
             return
         col = layout.column()
         row = col.row(align=True, heading="Temperature")
@@ -209,8 +209,20 @@ class LAZYVIS_LIGHT_PT_light(LazyVisPanel, bpy.types.Panel):
         sub.prop(light, "temperature", text="")
         col.prop(light, "color", text="Tint" if light.use_temperature else "Color")
         col = layout.column()
-        col.prop(light, "energy")
+        col.prop(light, "energy", text="Strength" if light.type == 'SUN' else "Power")
         col.prop(light, "exposure")
+        if light.type == 'SUN':
+            layout.column().prop(light, "angle")
+            return
+        if light.type in {'POINT', 'SPOT'}:
+            col = layout.column()
+            col.prop(light, "use_soft_falloff")
+            col.prop(light, "shadow_soft_size", text="Radius")
+            if light.type == 'SPOT':
+                col = layout.column()
+                col.prop(light, "spot_size", text="Spot Size")
+                col.prop(light, "spot_blend", text="Blend")
+            return
         col.prop(light, "normalize")
         col = layout.column()
         col.prop(light, "shape")

@@ -1,8 +1,8 @@
 """Point, spot and sun lights: lights that face the shading point, as polygons built per receiver.
 
-Cycles 5.0.1 (measured; the README's light table): a point lamp of radius r with Soft Falloff on (Blender's default) is
-a disk of radius r always facing the shaded point; with it off, a sphere of radius r; a spot is that lamp
-times a cone mask; a sun is a disc of directions of angular diameter Angle. Seen from a receiver x, each is
+Cycles 5.0.1 (measured; the README's light table): a point lamp of radius r with Soft Falloff on (Blender's
+default) is a disk of radius r always facing the shaded point; with it off, a sphere of radius r; a spot is
+that lamp times a cone mask; a sun is a disc of directions of angular diameter Angle. Seen from a receiver x, each is
 a cap of directions of uniform radiance:
 - a lamp: about c - x (c its centre, d = |c - x|), half-angle atan(r / d) (disk) or asin(r / d) (sphere),
   radiance I / (pi r^2), I its intensity; under a disk at normal incidence that is I / (d^2 + r^2);
@@ -299,8 +299,139 @@ def too_close(frames, light: int, points: np.ndarray) -> np.ndarray:
 
 
 def compile_facing():
-    """Compile ``_cap_polygons`` (or load it from Numba's cache) on a one-receiver input; returns it."""
+    """Compile ``_cap_polygons`` and ``_masked_integrals`` (or load them from Numba's cache) on one-receiver
+    inputs; returns them."""
     one, three, i = np.zeros(1), np.zeros((1, 3)), np.zeros(1, np.int64)
     _cap_polygons(i, three, i, i, three, three, three, three, three, one, LAMP_AXES, 1.0, 1.0, 1.0,
                   np.empty((1, FACING_VERTICES, 2)), np.empty(1, np.int64), np.empty(1, np.bool_))
-    return _cap_polygons
+    _masked_integrals(np.zeros((1, 3, 2)), i, one, i, three, three, i, three, three, three, np.zeros((1, 3, 3)),
+                      one, one, SPOT_POINTS, SPOT_WEIGHTS, np.zeros(1), np.zeros(1))
+    return _cap_polygons, _masked_integrals
+
+
+# ------------------------------------------------------------------------------------------------------
+# Spot cones over the cap
+# ------------------------------------------------------------------------------------------------------
+# Cycles evaluates a spot's cone on each shadow ray's direction (from the sampled point of the lamp to the
+# shaded point), so a lamp of radius r blurs the cone's edge by about r / d: over a cap the cone's mask is
+# a function of direction. Where it is constant over a couple's light (0 or 1: all but a rim's receivers)
+# it multiplies the couple's integrals; elsewhere a fixed Gauss rule (SPOT_RULE points a side, per fan
+# triangle of every visible piece, in the light's plane) integrates mask x cosine and the cosine alone, and
+# their ratio scales the couple's integrals (exact for the diffuse lobe up to the rule's error; for glossy
+# lobes the ratio of the diffuse lobe's is used).
+SPOT_RULE = 6
+
+
+def _gauss_triangle(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """A collapsed Gauss-Legendre rule on the unit triangle (0,0), (1,0), (0,1): (n^2, 2) points (s, t)
+    and (n^2,) weights summing to 1/2, exact for polynomials of degree 2n - 2."""
+    x, w = np.polynomial.legendre.leggauss(n)
+    x, w = 0.5 * (x + 1.0), 0.5 * w
+    s = np.repeat(x, n)
+    t = np.tile(x, n) * (1.0 - s)
+    weight = np.repeat(w, n) * np.tile(w, n) * (1.0 - s)
+    return np.stack([s, t], axis=1), weight
+
+
+SPOT_POINTS, SPOT_WEIGHTS = _gauss_triangle(SPOT_RULE)
+
+
+def direction_mask(frames, light: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """The spot mask (N,) of light ``light`` (N,) int64 along shadow rays leaving receivers in ``direction``
+    (N, 3) (towards the lamp, any length): Cycles' smoothstep on the ray's direction in the spot's scaled
+    frame; 1 for lights without a cone."""
+    return spot_mask(frames, light, -np.asarray(direction, np.float64))
+
+
+def spot_factors(frames, couples, couple_pixel: np.ndarray, shading_normal: np.ndarray, piece_sets) -> np.ndarray:
+    """Per couple (Nc,) float64: what the spot cone leaves of its integrals (1 for other lights).
+
+    Parameters
+    ----------
+    couples : ReceiverLight; couple_pixel (Nc,); shading_normal (N, 3) unit, per pixel;
+    piece_sets : list of (uv (M, K, 2), count (M,), couple (M,), sign (M,) or None): the couple's visible
+        region as pieces in the light's plane (signed terms add).
+    """
+    n_couples = len(couple_pixel)
+    factor = np.ones(n_couples)
+    coned = np.flatnonzero(frames.spot_cos_half[couples.light] >= -1.0)
+    if len(coned) == 0:
+        return factor
+    light = couples.light[coned]
+    # The mask at the light's clipped vertices and at its centre: constant over the (convex) light where
+    # all agree on 1 (inside the inner cone, convex), or on 0 with the centre (outside the outer one).
+    directions = couples.directions(frames, couples.uv[coned], coned)            # (C, K, 3)
+    width = directions.shape[1]
+    corner = direction_mask(frames, np.repeat(light, width), directions.reshape(-1, 3)).reshape(-1, width)
+    centre = direction_mask(frames, light, frames.cap_centre[light] - (couples.receiver_in_light[coned]
+                                                                          + frames.origin[light]))
+    full = (corner == 1.0).all(axis=1)
+    dark = (corner == 0.0).all(axis=1) & (centre == 0.0)
+    factor[coned[dark]] = 0.0
+    rim = coned[~full & ~dark]
+    if len(rim) == 0:
+        return factor
+    is_rim = np.zeros(n_couples, bool)
+    is_rim[rim] = True
+    masked, plain = np.zeros(n_couples), np.zeros(n_couples)
+    for uv, count, couple, sign in piece_sets:  # a couple of piece sets
+        rows = np.flatnonzero(is_rim[couple])
+        if len(rows) == 0:
+            continue
+        c = couple[rows]
+        l = couples.light[c]
+        _masked_integrals(np.ascontiguousarray(uv[rows], np.float64), np.ascontiguousarray(count[rows], np.int64),
+                          np.ones(len(rows)) if sign is None else np.ascontiguousarray(sign[rows], np.float64),
+                          np.ascontiguousarray(c, np.int64), np.ascontiguousarray(couples.local[c], np.float64),
+                          np.ascontiguousarray(shading_normal[couple_pixel[c]], np.float64),
+                          np.ascontiguousarray(l, np.int64), frames.tangent, frames.bitangent, frames.normal,
+                          frames.spot_frame, frames.spot_cos_half, frames.spot_smooth, SPOT_POINTS, SPOT_WEIGHTS,
+                          masked, plain)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(plain[rim] > 0, masked[rim] / plain[rim], centre[np.searchsorted(coned, rim)])
+    factor[rim] = np.clip(ratio, 0.0, 1.0)
+    return factor
+
+
+@njit(cache=True, nogil=True)
+def _masked_integrals(uv, count, sign, couple, local, normal, light, tangent, bitangent, light_normal, spot_frame,
+                      cos_half, smooth, points, weights, masked, plain):
+    """Add sign x the rule's integrals of mask x cos and of cos over each piece (fan triangles from vertex
+    0) to masked[couple], plain[couple]. A point y = (u, v) of the light's plane seen from the receiver at
+    local (u_x, v_x, h): direction d = (u - u_x) t + (v - v_x) b - h n, solid angle |h| / |d|^3 per area."""
+    d = np.empty(3)
+    for p in range(len(count)):
+        l = light[p]
+        ux, vx, h = local[p, 0], local[p, 1], local[p, 2]
+        total_masked, total_plain = 0.0, 0.0
+        for k in range(1, count[p] - 1):
+            au, av = uv[p, 0, 0], uv[p, 0, 1]
+            bu, bv = uv[p, k, 0] - au, uv[p, k, 1] - av
+            cu, cv = uv[p, k + 1, 0] - au, uv[p, k + 1, 1] - av
+            area2 = abs(bu * cv - bv * cu)
+            for q in range(len(weights)):
+                u = au + points[q, 0] * bu + points[q, 1] * cu - ux
+                v = av + points[q, 0] * bv + points[q, 1] * cv - vx
+                for k3 in range(3):
+                    d[k3] = u * tangent[l, k3] + v * bitangent[l, k3] - h * light_normal[l, k3]
+                length = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+                cosine = (d[0] * normal[p, 0] + d[1] * normal[p, 1] + d[2] * normal[p, 2]) / length
+                if cosine <= 0.0:
+                    continue
+                value = weights[q] * area2 * abs(h) / (length * length * length) * cosine
+                # The ray leaves the lamp along -d: its direction in the spot's frame.
+                z, size = 0.0, 0.0
+                for i in range(3):
+                    e = -(spot_frame[l, i, 0] * d[0] + spot_frame[l, i, 1] * d[1] + spot_frame[l, i, 2] * d[2])
+                    size += e * e
+                    if i == 2:
+                        z = e
+                cos_angle = -z / np.sqrt(size)
+                if smooth[l] > 0.0:
+                    t = min(max((cos_angle - cos_half[l]) / smooth[l], 0.0), 1.0)
+                else:
+                    t = 1.0 if cos_angle > cos_half[l] else 0.0
+                total_masked += value * t * t * (3.0 - 2.0 * t)
+                total_plain += value
+        masked[couple[p]] += sign[p] * total_masked
+        plain[couple[p]] += sign[p] * total_plain

@@ -19,7 +19,7 @@ from . import rng
 from .blocker_map import BlockerMap, first_blocker
 from .blockers import BlockerPolygons, silhouette_planes
 from .bsdf import SurfaceBsdf
-from .facing import spot_mask, taken_planes
+from .facing import direction_mask, spot_factors, taken_planes
 from .geometry import (PLANE_EPS, LightFrames, ReceiverLight, blocker_in_front_of_light, clip_convex, cone_planes,
                        pad_to, plane_lines, polygon_area_2d, projected_solid_angle_uv, receiver_light, split_convex, trim)
 from .ggx import ROUGHNESS_SQ_THRESHOLD, alpha_from_roughness, ggx_reflection_pdf, sample_ggx_reflection
@@ -594,8 +594,22 @@ def couple_weights(pieces: VisiblePieces, surface: SurfacePoints, frames: LightF
     ``settings.integrator`` "reduced_mc" samples the whole BSDF; otherwise the diffuse lobe is exact
     (Lambert's formula) and the GGX lobes follow ``settings.glossy_integrator``. ``more``: further signed
     terms of the same couples (pieces of another width, as the silhouettes' whole lights beside their fan
-    triangles): the integrals add, and the mirror test sees both sets at once.
+    triangles): the integrals add, and the mirror test sees both sets at once. Spot lights' cones scale
+    each couple's integrals (``facing.spot_factors``).
     """
+    weights = _couple_weights(pieces, surface, frames, bsdf, settings, pixel_global, more, clamp)
+    if not (frames.spot_cos_half[pieces.couples.light] >= -1.0).any():
+        return weights
+    sets = [(pieces.uv, pieces.count, pieces.couple, pieces.sign)]
+    if more is not None:
+        sets.append((more.uv, more.count, more.couple, more.sign))
+    factor = spot_factors(frames, pieces.couples, pieces.couple_pixel, surface.shading_normal, sets)
+    return weights * factor[:, None]
+
+
+def _couple_weights(pieces: VisiblePieces, surface: SurfacePoints, frames: LightFrames, bsdf: SurfaceBsdf,
+                    settings: Settings, pixel_global: np.ndarray, more: VisiblePieces | None = None,
+                    clamp: bool = True) -> np.ndarray:
     if more is not None:
         rough = _without_mirrors(bsdf)
         total = np.maximum(_summed_weights(pieces, surface, frames, rough, settings, pixel_global)
@@ -628,13 +642,13 @@ def _summed_weights(pieces: VisiblePieces, surface: SurfacePoints, frames: Light
     """``couple_weights`` of signed terms without the clamp, (Nc, 3), summed over chunks of TERM_CHUNK terms
     (the unclamped integrals are linear in the terms)."""
     if len(pieces.couple) <= TERM_CHUNK:
-        return couple_weights(pieces, surface, frames, bsdf, settings, pixel_global, clamp=False)
+        return _couple_weights(pieces, surface, frames, bsdf, settings, pixel_global, clamp=False)
     total = 0.0
     for lo in range(0, len(pieces.couple), TERM_CHUNK):  # chunks of terms
         rows = slice(lo, lo + TERM_CHUNK)
         chunk = dataclasses.replace(pieces, uv=pieces.uv[rows], count=pieces.count[rows], couple=pieces.couple[rows],
                                     sign=None if pieces.sign is None else pieces.sign[rows])
-        total = total + couple_weights(chunk, surface, frames, bsdf, settings, pixel_global, clamp=False)
+        total = total + _couple_weights(chunk, surface, frames, bsdf, settings, pixel_global, clamp=False)
     return total
 
 
@@ -730,6 +744,8 @@ def standard_mc(surface: SurfacePoints, frames: LightFrames, tracer, bsdf: Surfa
     estimate = np.zeros((len(rows), 3))
     shown = np.flatnonzero(visible)
     estimate[shown] = bsdf.value(pixel[shown], direction[shown]) * (cosine[shown] / pdf[shown])[:, None]
+    if frames.any_facing:  # a spot's cone, on each shadow ray's direction as Cycles evaluates it
+        estimate[shown] *= direction_mask(frames, light[shown], direction[shown])[:, None]
     weights = np.stack([np.bincount(rows, weights=estimate[:, c], minlength=n_couples) for c in range(3)], axis=1)
     return weights / samples, couples, couple_pixel, int(good.sum())
 
@@ -747,8 +763,6 @@ def reflected_radiance(n_points: int, frames: LightFrames, couples: ReceiverLigh
     radiance = np.zeros((n_points, 3))
     if len(couple_pixel):
         contribution = frames.radiance[couples.light] * weights
-        if frames.any_facing:  # spot cones (1 elsewhere)
-            contribution = contribution * spot_mask(frames, couples.light, couples.receiver_in_light)[:, None]
         for channel in range(3):  # colour channels
             radiance[:, channel] = np.bincount(couple_pixel, weights=contribution[:, channel], minlength=n_points)
     return radiance

@@ -563,7 +563,7 @@ def compile_kernels() -> bool:
     kernels = (detection_module._detect, *compile_regions(), arrangement_module._fans,
                arrangement_module._jumps, _cone_planes, _bounding_cones, _reference_points, _hull_rows,
                _silhouette_lights, _fan_triangles_kernel, *compile_geometry(), *compile_terminator(),
-               compile_facing())
+               *compile_facing())
     return any(kernel.stats.cache_misses for kernel in kernels)
 
 

@@ -17,7 +17,7 @@ from typing import Callable
 
 import bpy
 
-from blender_helpers import ROOT, add_area_light, add_camera, assign, node_material
+from blender_helpers import ROOT, add_area_light, add_camera, add_light, assign, node_material
 
 REFERENCES = ROOT / "tests" / "references"
 
@@ -68,6 +68,54 @@ def glossy_floor(scene, roughness: float) -> None:
     assign(bpy.context.object, node_material("Bar", Color=(0.4, 0.4, 0.4)))
     add_area_light(location=(0.0, 3.5, 2.0), rotation=(math.radians(-30.0), 0.0, 0.0), shape="RECTANGLE",
                    size=1.5, size_y=0.6, energy=150.0)
+
+
+def lamps_and_boxes(scene) -> None:
+    """Issue 14: boxes on a floor under two point lamps (Soft Falloff on, the disk; off, the sphere) and a
+    spot (scaled, rotated, a soft blend), with a Principled box at Specular IOR Level 0."""
+    add_camera(scene, location=(0.3, -5.2, 3.6), rotation=(math.radians(56), 0.0, math.radians(3)), lens=36.0)
+    bpy.ops.mesh.primitive_plane_add(size=8.0)
+    assign(bpy.context.object, node_material("Floor", Color=(0.6, 0.6, 0.6)))
+    bpy.ops.mesh.primitive_cube_add(size=0.7, location=(0.5, 0.3, 0.35), rotation=(0.0, 0.0, 0.4))
+    assign(bpy.context.object, node_material("Red", "ShaderNodeBsdfPrincipled", Base_Color=(0.8, 0.3, 0.2),
+                                             Specular_IOR_Level=0.0))
+    bpy.ops.mesh.primitive_cube_add(size=0.5, location=(-0.9, -0.4, 0.6), rotation=(0.3, 0.2, 0.9))
+    assign(bpy.context.object, node_material("Blue", Color=(0.2, 0.3, 0.8)))
+    add_light("POINT", location=(-0.4, -0.6, 2.0), energy=150.0, shadow_soft_size=0.3, color=(1.0, 0.9, 0.8))
+    add_light("POINT", location=(1.6, 1.0, 1.5), energy=60.0, shadow_soft_size=0.15, use_soft_falloff=False)
+    add_light("SPOT", location=(-1.4, 1.6, 2.6), rotation=(math.radians(-35), math.radians(-25), 0.0),
+              scale=(1.0, 1.0, 1.0), energy=300.0, shadow_soft_size=0.2, spot_size=math.radians(55), spot_blend=0.3,
+              color=(0.7, 0.8, 1.0))
+
+
+def sun_and_fence(scene) -> None:
+    """Issue 14: a fence of thin posts and a box under a soft sun (3 degrees) and a rectangle area light."""
+    add_camera(scene, location=(0.0, -6.0, 3.0), rotation=(math.radians(64), 0.0, 0.0), lens=35.0)
+    bpy.ops.mesh.primitive_plane_add(size=10.0)
+    assign(bpy.context.object, node_material("Ground", Color=(0.7, 0.65, 0.6)))
+    for index in range(7):  # scene construction
+        bpy.ops.mesh.primitive_cube_add(size=1.0, location=(-1.5 + 0.5 * index, 0.8, 0.5), scale=(0.06, 0.06, 1.0))
+        assign(bpy.context.object, node_material(f"Post{index}", Color=(0.4, 0.3, 0.2)))
+    bpy.ops.mesh.primitive_cube_add(size=1.0, location=(0.0, 0.8, 0.85), scale=(3.4, 0.04, 0.05))
+    assign(bpy.context.object, node_material("Rail", Color=(0.4, 0.3, 0.2)))
+    bpy.ops.mesh.primitive_cube_add(size=0.6, location=(0.9, -0.8, 0.3), rotation=(0.0, 0.0, 0.3))
+    assign(bpy.context.object, node_material("Box", Color=(0.3, 0.6, 0.3)))
+    add_light("SUN", rotation=(math.radians(40), 0.0, math.radians(160)), energy=3.0, angle=math.radians(3.0))
+    add_area_light(location=(-2.0, -1.5, 2.5), rotation=(0.5, -0.6, 0.0), shape="RECTANGLE", size=0.8, size_y=0.4,
+                   energy=40.0)
+
+
+def hard_lamps(scene) -> None:
+    """Issue 14: radius 0 and angle 0: a point lamp, a spot and a sun with hard shadows over boxes."""
+    add_camera(scene, location=(0.0, -5.0, 3.5), rotation=(math.radians(57), 0.0, 0.0), lens=38.0)
+    bpy.ops.mesh.primitive_plane_add(size=8.0)
+    assign(bpy.context.object, node_material("Floor", Color=(0.6, 0.6, 0.6)))
+    bpy.ops.mesh.primitive_cube_add(size=0.6, location=(0.4, 0.2, 0.5), rotation=(0.0, 0.0, 0.5))
+    assign(bpy.context.object, node_material("Box", Color=(0.7, 0.5, 0.3)))
+    add_light("POINT", location=(-0.5, -0.8, 2.2), energy=120.0, shadow_soft_size=0.0)
+    add_light("SPOT", location=(1.3, 1.2, 2.4), rotation=(math.radians(-30), math.radians(20), 0.0), energy=200.0,
+              shadow_soft_size=0.0, spot_size=math.radians(70), spot_blend=0.15)
+    add_light("SUN", rotation=(math.radians(30), 0.0, math.radians(-120)), energy=1.5, angle=0.0)
 
 
 GLOSSY_ROUGHNESS = (0.1, 0.3, 0.5, 0.8)
@@ -140,6 +188,10 @@ CASES = (
     Case("suzanne_dense", (96, 96), blend="sample_blends/suzanne_dense.blend"),
     Case("tree", (48, 48), blend="sample_blends/tree.blend", samples_factor=2),
     Case("chairs", (96, 96), blend="sample_blends/chairs.blend"),
+    # Issue 14: point, spot and sun lights, soft and hard.
+    Case("lamps_and_boxes", (64, 48), build=lamps_and_boxes),
+    Case("sun_and_fence", (64, 48), build=sun_and_fence),
+    Case("hard_lamps", (64, 48), build=hard_lamps),
     # Issue 5: Blender's default pixel filter, LazyVis anti-aliasing with its defaults.
     Case("floating_boxes_filter1.5", (96, 96), blend="sample_blends/floating_boxes.blend", filter_width=DEFAULT_FILTER),
     Case("textured_filter1.5", (96, 96), blend="sample_blends/textured.blend", filter_width=DEFAULT_FILTER),

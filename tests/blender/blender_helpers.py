@@ -33,6 +33,18 @@ def add_area_light(location=(0.0, 0.0, 3.0), rotation=(0.0, 0.0, 0.0), scale=(1.
     return light
 
 
+def add_light(kind, location=(0.0, 0.0, 3.0), rotation=(0.0, 0.0, 0.0), scale=(1.0, 1.0, 1.0), name=None, **data):
+    """A point, spot or sun light (``kind`` "POINT", "SPOT", "SUN") with its data properties set."""
+    bpy.ops.object.light_add(type=kind, location=location, rotation=rotation)
+    light = bpy.context.object
+    light.scale = scale
+    if name:
+        light.name = name
+    for key, value in data.items():
+        setattr(light.data, key, value)
+    return light
+
+
 def node_material(name, shader="ShaderNodeBsdfDiffuse", **inputs):
     """A material whose output is fed by one shader node with the given unlinked inputs."""
     material = bpy.data.materials.new(name)

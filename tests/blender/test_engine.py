@@ -234,16 +234,19 @@ def test_no_lights_warns_and_renders_black(scene, reports, tmp_path):
 
 
 @needs_core
-def test_only_point_lights_warn_naming_them(scene, reports, tmp_path):
+def test_point_lights_light_the_plane_and_one_warning_names_them(scene, reports, tmp_path):
     add_camera(scene)
     bpy.ops.mesh.primitive_plane_add(size=20.0)
     for name in ("Bulb", "Lamp"):
         bpy.ops.object.light_add(type="POINT", location=(0.0, 0.0, 2.0))
         bpy.context.object.name = name
+        bpy.context.object.data.shadow_soft_size = 0.2
+        bpy.context.object.visible_camera = True
     combined = render_to_exr(scene, tmp_path / "points.exr")["RGBA"]
+    # Cycles draws lamps the camera sees; LazyVis does not: one warning naming both.
     named = [m for m in reports if "Bulb" in m]
-    assert len(named) == 1 and "Lamp" in named[0]
-    np.testing.assert_array_equal(combined[..., :3], 0.0)
+    assert len(named) == 1 and "Lamp" in named[0] and "camera" in named[0]
+    assert combined[..., :3].min() > 0 and np.isfinite(combined).all()
 
 
 @needs_core

@@ -13,6 +13,7 @@ bpy = pytest.importorskip("bpy")
 
 from blender_helpers import add_area_light, add_camera, assign, node_material  # noqa: E402
 
+from lazyvis_addon.core.scene import FACING_DISK, FACING_SPHERE, FACING_SUN  # noqa: E402
 from lazyvis_addon.blender.export import (  # noqa: E402
     DEFAULT_ALBEDO, border_window, ellipse_polygon, export_depsgraph, polygon_area_normal, screen_window)
 from lazyvis_addon.core.progress import Progress  # noqa: E402
@@ -186,16 +187,58 @@ def test_light_spread_warns(scene):
     assert any("spread" in w and "Narrow" in w for w in warnings)
 
 
-def test_point_spot_sun_lights_one_warning_naming_them(scene):
+def test_point_spot_sun_lights_are_exported_as_cycles_renders_them(scene):
+    """Intensity P / (4 pi) for lamps (a spot the same lamp with its cone), Strength as a sun's irradiance,
+    Soft Falloff choosing the disk or the sphere, directions from the object's -Z (README light table)."""
     add_camera(scene)
+    made = {}
     for kind in ("POINT", "SPOT", "SUN"):
-        bpy.ops.object.light_add(type=kind)
-        bpy.context.object.name = f"My{kind.title()}"
+        bpy.ops.object.light_add(type=kind, location=(1.0, 2.0, 3.0), rotation=(0.3, -0.2, 0.5))
+        obj = bpy.context.object
+        obj.name = f"My{kind.title()}"
+        obj.data.energy = {"POINT": 100.0, "SPOT": 50.0, "SUN": 3.0}[kind]
+        obj.data.color = (1.0, 0.5, 0.25)
+        made[kind] = obj
+    made["POINT"].data.shadow_soft_size = 0.3
+    made["SPOT"].data.shadow_soft_size = 0.1
+    made["SPOT"].data.use_soft_falloff = False
+    made["SPOT"].data.spot_size = math.radians(45.0)
+    made["SPOT"].data.spot_blend = 0.2
+    made["SUN"].data.angle = math.radians(5.0)
+    bpy.context.view_layer.update()
     exported, warnings = export(scene)
-    assert len(exported.scene.lights) == 0
-    named = [w for w in warnings if "MyPoint" in w]
-    assert len(named) == 1
-    assert "MySpot" in named[0] and "MySun" in named[0] and "area lights" in named[0]
+    facing = exported.scene.facing
+    assert len(exported.scene.lights) == 0 and len(facing) == 3
+    assert exported.light_names == ["MyPoint", "MySpot", "MySun"]
+    colour = np.array([1.0, 0.5, 0.25])
+    point, spot, sun = 0, 1, 2
+    np.testing.assert_array_equal(facing.kind, [FACING_DISK, FACING_SPHERE, FACING_SUN])
+    np.testing.assert_allclose(facing.centre[point], (1.0, 2.0, 3.0), atol=1e-6)
+    np.testing.assert_allclose(facing.radius, [0.3, 0.1, math.radians(2.5)], rtol=1e-6)
+    np.testing.assert_allclose(facing.intensity[point], colour * 100.0 / (4 * math.pi), rtol=1e-6)
+    np.testing.assert_allclose(facing.intensity[spot], colour * 50.0 / (4 * math.pi), rtol=1e-6)
+    np.testing.assert_allclose(facing.intensity[sun], colour * 3.0, rtol=1e-6)
+    matrix = np.array(made["SUN"].matrix_world)
+    np.testing.assert_allclose(facing.centre[sun] / np.linalg.norm(facing.centre[sun]), matrix[:3, 2], atol=1e-6)
+    cos_half = math.cos(math.radians(22.5))
+    np.testing.assert_allclose(facing.spot_cos_half[spot], cos_half, rtol=1e-6)
+    np.testing.assert_allclose(facing.spot_smooth[spot], 0.2 * (1 - cos_half), rtol=1e-5)
+    # The spot's axis, its local -Z, has cos 1 in its frame.
+    axis = -np.array(made["SPOT"].matrix_world)[:3, 2]
+    local = facing.spot_frame[spot] @ axis
+    assert -local[2] / np.linalg.norm(local) > 1 - 1e-9
+    assert facing.spot_cos_half[point] < -1 and facing.spot_cos_half[sun] < -1
+    assert not any("ignored" in w and "MyPoint" in w for w in warnings)
+
+
+def test_lights_of_unknown_use_warn(scene):
+    add_camera(scene)
+    bpy.ops.object.light_add(type="POINT")
+    bpy.context.object.name = "Dark"
+    bpy.context.object.data.energy = 0.0
+    exported, warnings = export(scene)
+    assert len(exported.scene.facing) == 0
+    assert any("zero power" in w and "Dark" in w for w in warnings)
 
 
 def test_zero_size_light_warns_and_is_skipped(scene):

@@ -70,11 +70,15 @@ def test_light_panel(scene, shape):
     assert ("size_y" in layout.props) == (shape in ("RECTANGLE", "ELLIPSE"))
 
 
-def test_light_panel_flags_unsupported_lights(scene):
-    bpy.ops.object.light_add(type="POINT")
+@pytest.mark.parametrize("kind, shown", [("POINT", {"shadow_soft_size", "use_soft_falloff"}),
+                                         ("SPOT", {"shadow_soft_size", "spot_size", "spot_blend"}),
+                                         ("SUN", {"angle"})])
+def test_light_panel_of_point_spot_and_sun(scene, kind, shown):
+    bpy.ops.object.light_add(type=kind)
     layout = draw(ui.LAZYVIS_LIGHT_PT_light,
                   SimpleNamespace(engine=scene.render.engine, light=bpy.context.object.data))
-    assert any("area lights only" in text for text in layout.labels)
+    assert {"energy", "color", "exposure"} | shown <= set(layout.props)
+    assert "normalize" not in layout.props and not any("ignored" in text for text in layout.labels)
 
 
 def test_material_and_world_panels_show_the_surface_node(scene):
