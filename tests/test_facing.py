@@ -123,17 +123,31 @@ def test_spot_mask_is_cycles_smoothstep():
     assert mask[0] == 1.0 and mask[-1] == 0.0 and 0 < mask[40] < 1
 
 
-def test_spot_light_is_the_lamp_times_its_mask():
-    lamp = FacingLights.point([0.2, 0.0, 2.0], 0.2, 4.0)
+def test_spot_light_is_the_lamp_times_its_mask_over_the_cap():
+    """Cycles evaluates the cone on each shadow ray's direction: where the whole cap lies inside the inner
+    cone or outside the outer one the spot is the lamp times 1 or 0; across the rim it is the mask's mean
+    over the cap, against standard Monte Carlo (the mask on each ray, Embree's directions)."""
+    lamp = FacingLights.point([0.2, 0.0, 2.0], 0.4, 4.0)
     spot = lamp.spot(np.eye(3), math.radians(60.0), 0.25)
     open_lamp, spotted = irradiance(floor_scene(lamp)), irradiance(floor_scene(spot))
     px, py = floor_points(floor_scene(lamp))
+    # The angle of each floor point from the spot's axis at the lamp, and the cap's half-angle seen there.
+    distance = np.sqrt((px - 0.2) ** 2 + py ** 2 + 4.0)
+    angle = np.arccos(2.0 / distance)
+    half = np.arctan(AREA_SCALE * 0.4 / distance)
+    inner = math.acos(math.cos(math.radians(30.0)) + 0.25 * (1 - math.cos(math.radians(30.0))))
+    inside, outside = angle + half < inner - 1e-3, angle - half > math.radians(30.0) + 1e-3
+    np.testing.assert_allclose(spotted[inside], open_lamp[inside], rtol=1e-6)
+    assert (spotted[outside] == 0).all() and inside.sum() > 20 and outside.sum() > 20
+    rim = ~inside & ~outside
+    standard = render(floor_scene(spot), CENTRES.replace(integrator="standard_mc", mc_samples=256)).combined[..., 0]
+    diff = (standard * np.pi / ALBEDO - spotted)[rim]
+    assert rim.sum() > 20 and abs(diff.mean()) < 4 * diff.std() / np.sqrt(diff.size)
+    # Not the mask at the cap's centre: that is off by far more than the noise across the rim.
     offset = np.stack([px - 0.2, py, -2.0 * np.ones_like(px)], axis=-1).reshape(-1, 3)
     frames = light_frames(Lights.empty(), spot, np.zeros(3), 5.0)
-    mask = spot_mask(frames, np.zeros(len(offset), np.int64), offset).reshape(px.shape)
-    # Hit points carry float32 rounding (1e-7 of the floor's size), which the steep blend magnifies.
-    np.testing.assert_allclose(spotted, open_lamp * mask, rtol=2e-4, atol=1e-7 * open_lamp.max())
-    assert (mask == 0).any() and (mask == 1).any()
+    centred = open_lamp * spot_mask(frames, np.zeros(len(offset), np.int64), offset).reshape(px.shape)
+    assert np.abs(centred - spotted)[rim].max() > 10 * diff.std()
 
 
 def test_lamps_and_sun_shadows_agree_with_shadow_rays():
