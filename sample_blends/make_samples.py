@@ -23,6 +23,9 @@
   DISK low on her right, whose shadows fall on her face as well as on the floor: level 2 against level 3.
 - ``tree.blend``: a trunk with four branches and 4,000 separate leaf quads (3-6 cm, randomly oriented) in a
   crown of radius 1 m over a ground, lit by a 1 m SQUARE and a 0.2 m DISK light: a dappled soft shadow.
+- ``room.blend``: a living-room corner (walls, floor, a sofa, a table on thin legs, a side table, a vase)
+  lit as users light one: a ceiling SQUARE area light, a point lamp of radius 8 cm over the side table, a
+  spot on the back wall and a hard point light (radius 0); Principled materials (issue 14).
 - ``chairs.blend``: 150 linked duplicates of one chair mesh (a seat, a back and four 2.5 cm legs, 72
   triangles) in 10 rows on the floor of a room corner, under a 5 x 2.5 m RECTANGLE light near the ceiling
   and a low 0.5 m SQUARE light that casts the legs' long shadows.
@@ -52,7 +55,7 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 
 SAMPLES = ("floating_boxes", "chapel", "suzanne", "glossy", "textured", "suzanne_dense", "suzanne_dense3",
-           "tree", "chairs")
+           "tree", "chairs", "room")
 
 
 # -- building blocks (bpy imported by main before any of these run) ------------------------------------------
@@ -560,9 +563,68 @@ def build_chairs() -> None:
     add_camera("Camera", (4.5, -8.5, 8.0), (-0.3, 0.3, 0.2), 50.0)
 
 
+def add_lamp(name: str, kind: str, location, power: float, radius: float, color=(1.0, 1.0, 1.0), target=None,
+             spot_size: float = 45.0, spot_blend: float = 0.15, angle: float = 0.0):
+    """A point, spot or sun light (``kind`` "POINT", "SPOT", "SUN"): power in W (a sun's Strength in W/m^2),
+    radius in m (a sun's angular diameter ``angle`` in degrees), spot size in degrees; spots and suns point
+    their local -Z at ``target``. Hidden from camera rays (Blender's default for new lights)."""
+    import bpy
+    from mathutils import Vector
+
+    data = bpy.data.lights.new(name, kind)
+    data.energy = power
+    data.color = color
+    if kind == "SUN":
+        data.angle = math.radians(angle)
+    else:
+        data.shadow_soft_size = radius
+    if kind == "SPOT":
+        data.spot_size = math.radians(spot_size)
+        data.spot_blend = spot_blend
+    light = add_object(name, data, location=location)
+    if target is not None:
+        light.rotation_euler = (Vector(target) - Vector(location)).to_track_quat("-Z", "Y").to_euler()
+    light.visible_camera = False
+    return light
+
+
+def build_room() -> None:
+    """A living-room corner lit as users light one: a soft ceiling area light, a point lamp (Soft Falloff on)
+    over a side table, a spot on the back wall and a small hard point light (radius 0) beside the sofa;
+    Principled materials (Specular IOR Level 0 on the walls and floor, a glossy table top)."""
+    new_scene(512, 384)
+    floor = principled("Floor", (0.55, 0.45, 0.35), 0.5)
+    wall = principled("Wall", (0.8, 0.78, 0.74), 0.5)
+    for material in (floor, wall):
+        node = next(n for n in material.node_tree.nodes if n.bl_idname == "ShaderNodeBsdfPrincipled")
+        node.inputs["Specular IOR Level"].default_value = 0.0
+    add_object("Floor", box_mesh("Floor", [((0.0, 0.0, -0.05), (8.0, 8.0, 0.1))]), floor)
+    add_object("Walls", box_mesh("Walls", [((0.0, 2.55, 1.4), (8.0, 0.1, 2.8)), ((-3.05, 0.0, 1.4), (0.1, 8.0, 2.8))]),
+               wall)
+    # The sofa's boxes overlap but share no face plane (coplanar overlapping faces shadow each other in
+    # Cycles, by rounding).
+    sofa = box_mesh("Sofa", [((-1.2, 1.7, 0.22), (2.2, 0.9, 0.44)), ((-1.2, 2.1, 0.62), (2.16, 0.2, 0.5)),
+                             ((-2.25, 1.7, 0.55), (0.2, 0.96, 0.3)), ((-0.15, 1.7, 0.55), (0.2, 0.96, 0.3))])
+    add_object("Sofa", sofa, principled("Fabric", (0.25, 0.35, 0.5), 0.9))
+    legs = [((x, y, 0.2), (0.04, 0.04, 0.4)) for x in (-0.45, 0.45) for y in (-0.25, 0.25)]
+    table = box_mesh("Table", [((0.0, 0.0, 0.42), (1.1, 0.65, 0.04))] + legs)
+    add_object("Table", table, principled("Wood", (0.45, 0.25, 0.12), 0.25), location=(-1.1, 0.4, 0.0))
+    side = box_mesh("Side Table", [((0.0, 0.0, 0.3), (0.45, 0.45, 0.6))])
+    add_object("Side Table", side, principled("Side", (0.7, 0.7, 0.65), 0.6), location=(0.5, 1.8, 0.0))
+    add_object("Vase", box_mesh("Vase", [((0.0, 0.0, 0.12), (0.12, 0.12, 0.24))]),
+               principled("Clay", (0.7, 0.3, 0.2), 0.7), location=(-1.3, 0.45, 0.44))
+    add_area_light("Ceiling", (-0.8, 0.6, 2.75), (-0.8, 0.6, 0.0), "SQUARE", 1.2, color=(1.0, 0.96, 0.9), radiance=6.0)
+    add_lamp("Lamp", "POINT", (0.5, 1.8, 1.05), 60.0, 0.08, color=(1.0, 0.8, 0.55))
+    add_lamp("Wall Spot", "SPOT", (0.8, -0.8, 2.6), 250.0, 0.05, color=(0.85, 0.9, 1.0), target=(-0.6, 2.5, 1.4),
+             spot_size=40.0, spot_blend=0.25)
+    add_lamp("Reading", "POINT", (-2.6, 1.2, 1.2), 15.0, 0.0)
+    add_camera("Camera", (1.9, -3.2, 1.9), (-1.0, 1.3, 0.6), 62.0)
+
+
 BUILDERS = {"floating_boxes": build_floating_boxes, "chapel": build_chapel, "suzanne": build_suzanne,
             "glossy": build_glossy, "textured": build_textured, "suzanne_dense": build_suzanne_dense,
-            "suzanne_dense3": lambda: build_suzanne_dense(levels=3), "tree": build_tree, "chairs": build_chairs}
+            "suzanne_dense3": lambda: build_suzanne_dense(levels=3), "tree": build_tree, "chairs": build_chairs,
+            "room": build_room}
 
 
 def main(argv: list[str]) -> int:

@@ -21,7 +21,8 @@ from .blockers import BlockerPolygons, silhouette_planes
 from .bsdf import SurfaceBsdf
 from .facing import direction_mask, spot_factors, taken_planes
 from .geometry import (PLANE_EPS, LightFrames, ReceiverLight, blocker_in_front_of_light, clip_convex, cone_planes,
-                       pad_to, plane_lines, polygon_area_2d, projected_solid_angle_uv, receiver_light, split_convex, trim)
+                       pad_to, plane_lines, polygon_area_2d, projected_solid_angle, projected_solid_angle_uv, receiver_light,
+                       split_convex, trim)
 from .ggx import ROUGHNESS_SQ_THRESHOLD, alpha_from_roughness, ggx_reflection_pdf, sample_ggx_reflection
 from .ltc import ltc_shape_integral
 from .phong import phong_exponent_from_roughness, phong_polygon_integral
@@ -546,6 +547,22 @@ def _lands_in_pieces(pieces: VisiblePieces, frames: LightFrames, couple: np.ndar
     return landed & reaches
 
 
+# A light whose angular radius is below this fraction of the GGX lobe's width (alpha) is integrated by the
+# lobe's value at its direction (``glossy_analytic``): the lobe's relative change over it is ~1e-3.
+SMALL_LIGHT = 0.05
+
+
+def _light_radius(couples: ReceiverLight, frames: LightFrames) -> np.ndarray:
+    """Angular radius (Nc,) radians of each couple's clipped light about its vertices' mean direction."""
+    directions = couples.directions(frames)
+    directions /= np.maximum(np.linalg.norm(directions, axis=2, keepdims=True), 1e-300)
+    real = np.arange(directions.shape[1])[None, :] < couples.count[:, None]
+    mean = (directions * real[..., None]).sum(axis=1)
+    mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-300)
+    cosine = np.where(real, np.einsum("nvk,nk->nv", directions, mean), 1.0).min(axis=1)
+    return np.arccos(np.clip(cosine, -1.0, 1.0))
+
+
 def glossy_analytic(pieces: VisiblePieces, frames: LightFrames, bsdf: SurfaceBsdf, method: str,
                     clamp: bool = True) -> np.ndarray:
     """∫ f_glossy cos θ_i over each couple's visible pieces by an analytic lobe, (Nc, 3).
@@ -571,6 +588,18 @@ def glossy_analytic(pieces: VisiblePieces, frames: LightFrames, bsdf: SurfaceBsd
     if method == "ltc":
         share, centroid = ltc_shape_integral(directions, normal, view, roughness, pieces.count[lobed], centroid=True)
         per_piece = share[:, None] * bsdf.glossy_magnitude(pixel, centroid)
+        # Lights far narrower than the lobe (a hard point light, a distant small lamp): the true lobe at the
+        # piece's direction times its projected solid angle. LTC fits the lobe's integral, not its value at
+        # a point: under a hard light on roughness 0.25 it was 17 % below Cycles.
+        small = _light_radius(pieces.couples, frames)[couple] < SMALL_LIGHT * alpha_from_roughness(roughness)
+        if small.any():
+            rows = np.flatnonzero(small)
+            real = np.arange(directions.shape[1])[None, :] < pieces.count[lobed][rows, None]
+            mean = (directions[rows] / np.linalg.norm(directions[rows], axis=2, keepdims=True)
+                    * real[..., None]).sum(axis=1)
+            mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-300)
+            projected = projected_solid_angle(directions[rows], normal[rows])
+            per_piece[rows] = bsdf.glossy_value(pixel[rows], mean) * projected[:, None]
     elif method == "phong":
         # The moments' recurrence costs one step per exponent unit: narrower lobes than n = 2000 (roughness
         # below 0.126) are integrated at n = 2000.

@@ -118,6 +118,17 @@ def hard_lamps(scene) -> None:
     add_light("SUN", rotation=(math.radians(30), 0.0, math.radians(-120)), energy=1.5, angle=0.0)
 
 
+def matte(scene) -> None:
+    """Every Principled BSDF at Specular IOR Level 0 (its diffuse base only, exact in LazyVis): the room's
+    lights without LTC's glossy shape error (issue 16)."""
+    for material in bpy.data.materials:
+        if material.node_tree is None:
+            continue
+        for node in material.node_tree.nodes:
+            if node.bl_idname == "ShaderNodeBsdfPrincipled":
+                node.inputs["Specular IOR Level"].default_value = 0.0
+
+
 GLOSSY_ROUGHNESS = (0.1, 0.3, 0.5, 0.8)
 
 # Cycles' smallest filter width (pixels, a radius): every sample within 0.01 px of the pixel centre.
@@ -192,6 +203,8 @@ CASES = (
     Case("lamps_and_boxes", (64, 48), build=lamps_and_boxes),
     Case("sun_and_fence", (64, 48), build=sun_and_fence),
     Case("hard_lamps", (64, 48), build=hard_lamps),
+    Case("room", (96, 72), blend="sample_blends/room.blend"),
+    Case("room_matte", (96, 72), blend="sample_blends/room.blend", prepare=matte),
     # Issue 5: Blender's default pixel filter, LazyVis anti-aliasing with its defaults.
     Case("floating_boxes_filter1.5", (96, 96), blend="sample_blends/floating_boxes.blend", filter_width=DEFAULT_FILTER),
     Case("textured_filter1.5", (96, 96), blend="sample_blends/textured.blend", filter_width=DEFAULT_FILTER),

@@ -335,7 +335,15 @@ def excluded_pixels(case, tmp_path, reach: float = SILHOUETTE_REACH):
 KNOWN_DIFFERENCES = set()
 GLOSSY_CASES = [case for case in agreement_scenes.CASES if case.name.startswith("glossy_")]
 FILTERED_CASES = [case for case in agreement_scenes.CASES if not case.point_sampled]
-CASES = [pytest.param(case, "analytic", id=f"{case.name}-analytic") for case in agreement_scenes.CASES
+# Cases that fail for a reason another issue owns: run, and expected to fail until it is fixed (strict: a
+# pass shows the issue done). The room's Principled sofa (roughness 0.9) and side table (0.6) are 1-4 %
+# below Cycles by LTC's shape error (glossy Monte Carlo over the same pieces agrees): issue 16. Its
+# lights are proven by room_matte.
+EXPECTED_FAILURES = {"room": "issue 16: LTC's glossy shape error (1-4 % on roughness 0.6-0.9)"}
+CASES = [pytest.param(case, "analytic", id=f"{case.name}-analytic",
+                      marks=[pytest.mark.xfail(reason=EXPECTED_FAILURES[case.name], strict=True)]
+                      if case.name in EXPECTED_FAILURES else [])
+         for case in agreement_scenes.CASES
          if case.name not in KNOWN_DIFFERENCES and case not in GLOSSY_CASES and case not in FILTERED_CASES]
 CASES += [pytest.param(case, "reference", id=f"{case.name}-reference")
           for case in agreement_scenes.CASES if case.reference_integrator]
