@@ -819,7 +819,8 @@ class _DepsgraphReader:
         color = np.array(light.color[:3], dtype=np.float64)
         if light.use_temperature:
             color = color * np.array(light.temperature_color[:3])
-        radiance = area_light_radiance(color, light.energy, light.exposure, light.normalize, area)
+        radiance = area_light_radiance(color * self.light_node_factor(light, name), light.energy, light.exposure,
+                                       light.normalize, area)
         if not radiance.max() > 0:
             self.skip("area lights of zero power or black colour are ignored", name)
             return
@@ -827,6 +828,25 @@ class _DepsgraphReader:
         self.light_radiance.append(radiance)
         self.light_names.append(name)
         self.counts["area_lights"] += 1
+
+    def light_node_factor(self, light, name: str) -> np.ndarray:
+        """(3,) what a light's node tree multiplies its colour and power by, as Cycles 5.0 reads it (measured:
+        an Emission node's Color times Strength feeding the Light Output). Other setups, and linked
+        Emission inputs, are read as 1 with one warning."""
+        tree = light.node_tree if getattr(light, "use_nodes", False) else None
+        if tree is None:
+            return np.ones(3)
+        outputs = [n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputLight"]
+        output = next((n for n in outputs if n.is_active_output), outputs[0] if outputs else None)
+        surface = output.inputs.get("Surface") if output is not None else None
+        if surface is None or not surface.is_linked:
+            return np.ones(3)
+        node = surface.links[0].from_node
+        strength, color = node.inputs.get("Strength"), node.inputs.get("Color")
+        if node.bl_idname != "ShaderNodeEmission" or strength.is_linked or color.is_linked:
+            self.skip("light node setups other than an unlinked Emission node are read as plain lights", name)
+            return np.ones(3)
+        return np.array(color.default_value[:3], dtype=np.float64) * float(strength.default_value)
 
     def add_facing_light(self, obj, matrix: np.ndarray) -> None:
         """A point, spot or sun light as a ``FacingLights`` row (the project's radiometry, measured against
@@ -841,9 +861,9 @@ class _DepsgraphReader:
         color = np.array(light.color[:3], dtype=np.float64)
         if getattr(light, "use_temperature", False):
             color = color * np.array(light.temperature_color[:3])
-        power = color * light.energy * 2.0 ** getattr(light, "exposure", 0.0)
+        power = color * light.energy * 2.0 ** getattr(light, "exposure", 0.0) * self.light_node_factor(light, name)
         if not power.max() > 0:
-            self.skip("lights of zero power or black colour are ignored", name)
+            self.skip("lights of zero or negative power, or black colour, are ignored", name)
             return
         if obj.visible_camera and light.type != "SUN":
             self.skip("point and spot lights are not drawn where the camera sees them (Cycles draws a lamp of "

@@ -740,6 +740,11 @@ def verify_visible(pieces: VisiblePieces, surface: SurfacePoints, frames: LightF
     return key // n_blockers // len(frames), key % n_blockers, key // n_blockers % len(frames), int(good.sum())
 
 
+# Shadow rays of standard Monte Carlo per array pass (each carries its padded polygon, up to a few hundred
+# bytes): at 512 samples a point-lit 96 px frame's 14 million rays at once were 11 GB.
+STANDARD_MC_RAYS = 1 << 18
+
+
 def standard_mc(surface: SurfacePoints, frames: LightFrames, tracer, bsdf: SurfaceBsdf, settings: Settings,
                 pixel_global: np.ndarray, lights: np.ndarray | None = None
                 ) -> tuple[np.ndarray, ReceiverLight, np.ndarray, int]:
@@ -756,27 +761,35 @@ def standard_mc(surface: SurfacePoints, frames: LightFrames, tracer, bsdf: Surfa
     n_couples = len(couple_pixel)
     if n_couples == 0:
         return np.zeros((0, 3)), couples, couple_pixel, 0
-    rows = np.repeat(np.arange(n_couples), samples)
-    sample = np.tile(np.arange(samples), n_couples)
-    pixel, light = couple_pixel[rows], couples.light[rows]
-    u = rng.uniforms(settings.seed, settings.frame, rng.STREAM_STANDARD_MC, pixel_global[pixel],
-                     light * samples + sample, 2)
-    u = rng.stratified_2d(u, sample, samples)
-    polygons = couples.directions(frames, couples.uv[rows], rows)
-    direction, pdf, _ = sample_polygon_solid_angle(polygons, couples.count[rows], u)
-    origin, tfar, good = shadow_rays(surface, pixel, direction, pdf, frames.origin[light], frames.normal[light],
-                                     couples.side[rows])
-    occluded = np.ones(len(rows), bool)
-    occluded[good] = tracer.occluded(origin[good], direction[good], tfar[good])
-    cosine = np.maximum(np.einsum("nk,nk->n", direction, surface.shading_normal[pixel]), 0.0)
-    visible = ~occluded & (pdf > 0)
-    estimate = np.zeros((len(rows), 3))
-    shown = np.flatnonzero(visible)
-    estimate[shown] = bsdf.value(pixel[shown], direction[shown]) * (cosine[shown] / pdf[shown])[:, None]
-    if frames.any_facing:  # a spot's cone, on each shadow ray's direction as Cycles evaluates it
-        estimate[shown] *= direction_mask(frames, light[shown], direction[shown])[:, None]
-    weights = np.stack([np.bincount(rows, weights=estimate[:, c], minlength=n_couples) for c in range(3)], axis=1)
-    return weights / samples, couples, couple_pixel, int(good.sum())
+    weights = np.zeros((n_couples, 3))
+    cast = 0
+    # Chunks of couples, so that the shadow rays' temporaries (a padded polygon per ray) follow the chunk.
+    per_chunk = max(1, STANDARD_MC_RAYS // samples)
+    for lo in range(0, n_couples, per_chunk):  # chunks of couples
+        chunk = np.arange(lo, min(lo + per_chunk, n_couples))
+        rows = np.repeat(chunk, samples)
+        sample = np.tile(np.arange(samples), len(chunk))
+        pixel, light = couple_pixel[rows], couples.light[rows]
+        u = rng.uniforms(settings.seed, settings.frame, rng.STREAM_STANDARD_MC, pixel_global[pixel],
+                         light * samples + sample, 2)
+        u = rng.stratified_2d(u, sample, samples)
+        polygons = couples.directions(frames, couples.uv[rows], rows)
+        direction, pdf, _ = sample_polygon_solid_angle(polygons, couples.count[rows], u)
+        origin, tfar, good = shadow_rays(surface, pixel, direction, pdf, frames.origin[light], frames.normal[light],
+                                         couples.side[rows])
+        occluded = np.ones(len(rows), bool)
+        occluded[good] = tracer.occluded(origin[good], direction[good], tfar[good])
+        cosine = np.maximum(np.einsum("nk,nk->n", direction, surface.shading_normal[pixel]), 0.0)
+        visible = ~occluded & (pdf > 0)
+        estimate = np.zeros((len(rows), 3))
+        shown = np.flatnonzero(visible)
+        estimate[shown] = bsdf.value(pixel[shown], direction[shown]) * (cosine[shown] / pdf[shown])[:, None]
+        if frames.any_facing:  # a spot's cone, on each shadow ray's direction as Cycles evaluates it
+            estimate[shown] *= direction_mask(frames, light[shown], direction[shown])[:, None]
+        for c in range(3):  # colour channels
+            weights[:, c] += np.bincount(rows, weights=estimate[:, c], minlength=n_couples)
+        cast += int(good.sum())
+    return weights / samples, couples, couple_pixel, cast
 
 
 def outgoing_radiance(surface: SurfacePoints, frames: LightFrames, couples: ReceiverLight, couple_pixel: np.ndarray,

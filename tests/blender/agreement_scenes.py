@@ -89,7 +89,8 @@ def lamps_and_boxes(scene) -> None:
 
 
 def sun_and_fence(scene) -> None:
-    """Issue 14: a fence of thin posts and a box under a soft sun (3 degrees) and a rectangle area light."""
+    """Issue 14: a fence of thin posts and a box under a soft sun (3 degrees) and a rectangle area light
+    whose node tree's Emission node tints and doubles it."""
     add_camera(scene, location=(0.0, -6.0, 3.0), rotation=(math.radians(64), 0.0, 0.0), lens=35.0)
     bpy.ops.mesh.primitive_plane_add(size=10.0)
     assign(bpy.context.object, node_material("Ground", Color=(0.7, 0.65, 0.6)))
@@ -101,8 +102,12 @@ def sun_and_fence(scene) -> None:
     bpy.ops.mesh.primitive_cube_add(size=0.6, location=(0.9, -0.8, 0.3), rotation=(0.0, 0.0, 0.3))
     assign(bpy.context.object, node_material("Box", Color=(0.3, 0.6, 0.3)))
     add_light("SUN", rotation=(math.radians(40), 0.0, math.radians(160)), energy=3.0, angle=math.radians(3.0))
-    add_area_light(location=(-2.0, -1.5, 2.5), rotation=(0.5, -0.6, 0.0), shape="RECTANGLE", size=0.8, size_y=0.4,
-                   energy=40.0)
+    light = add_area_light(location=(-2.0, -1.5, 2.5), rotation=(0.5, -0.6, 0.0), shape="RECTANGLE", size=0.8,
+                           size_y=0.4, energy=20.0).data
+    light.use_nodes = True  # Cycles multiplies by the Emission node's Color x Strength
+    emission = next(n for n in light.node_tree.nodes if n.bl_idname == "ShaderNodeEmission")
+    emission.inputs["Strength"].default_value = 2.0
+    emission.inputs["Color"].default_value = (1.0, 0.7, 0.5, 1.0)
 
 
 def hard_lamps(scene) -> None:

@@ -9,7 +9,7 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from blender_helpers import add_area_light, add_camera, render_to_exr  # noqa: E402
+from blender_helpers import add_area_light, add_camera, add_light, render_to_exr  # noqa: E402
 
 from lazyvis_addon.blender import engine as engine_module  # noqa: E402
 from lazyvis_addon.core.progress import RenderCancelled  # noqa: E402
@@ -247,6 +247,27 @@ def test_point_lights_light_the_plane_and_one_warning_names_them(scene, reports,
     named = [m for m in reports if "Bulb" in m]
     assert len(named) == 1 and "Lamp" in named[0] and "camera" in named[0]
     assert combined[..., :3].min() > 0 and np.isfinite(combined).all()
+
+
+@needs_core
+def test_odd_point_spot_and_sun_lights_give_warnings_and_a_sensible_image(scene, reports, tmp_path):
+    """A lamp inside a closed box, a sun of Angle 180 degrees, spots of size 0 and 180 degrees, negative power
+    and a NaN transform: one warning each where LazyVis departs from Cycles, finite pixels, no traceback."""
+    import math
+    add_camera(scene)
+    bpy.ops.mesh.primitive_plane_add(size=20.0)
+    bpy.ops.mesh.primitive_cube_add(size=0.6, location=(1.0, 1.0, 0.5))
+    add_light("POINT", location=(1.0, 1.0, 0.5), name="Boxed", energy=100.0, shadow_soft_size=0.1)
+    add_light("SUN", name="Wide Sun", energy=1.0, angle=math.pi)
+    add_light("SPOT", location=(0.0, 0.0, 3.0), name="Pin", energy=100.0, spot_size=0.0)
+    add_light("SPOT", location=(0.0, 0.0, 3.0), name="Open", energy=100.0, spot_size=math.pi, shadow_soft_size=0.2)
+    add_light("POINT", location=(0.0, 0.0, 2.0), name="Negative", energy=-50.0)
+    add_light("POINT", location=(float("nan"), 0.0, 2.0), name="Lost", energy=50.0)
+    combined = render_to_exr(scene, tmp_path / "odd.exr")["RGBA"]
+    assert np.isfinite(combined).all() and combined[..., :3].min() >= 0 and combined[..., :3].max() > 0
+    assert any("Wide Sun" in m and "degrees" in m for m in reports)
+    assert any("Negative" in m and "negative power" in m for m in reports)
+    assert any("Lost" in m and "NaN" in m for m in reports)
 
 
 @needs_core

@@ -231,6 +231,26 @@ def test_point_spot_sun_lights_are_exported_as_cycles_renders_them(scene):
     assert not any("ignored" in w and "MyPoint" in w for w in warnings)
 
 
+@pytest.mark.parametrize("kind", ["AREA", "POINT"])
+def test_light_node_strength_and_colour_multiply_the_light(scene, kind):
+    """Cycles 5.0 multiplies a light by its node tree's Emission Color x Strength (measured: strength 3,
+    colour (1, 0.5, 0.25) on a point lamp gave exactly those factors)."""
+    add_camera(scene)
+    bpy.ops.object.light_add(type=kind)
+    light = bpy.context.object.data
+    light.energy, light.shadow_soft_size = 10.0, 0.1
+    plain, _ = export(scene)
+    light.use_nodes = True
+    emission = next(n for n in light.node_tree.nodes if n.bl_idname == "ShaderNodeEmission")
+    emission.inputs["Strength"].default_value = 3.0
+    emission.inputs["Color"].default_value = (1.0, 0.5, 0.25, 1.0)
+    noded, warnings = export(scene)
+    before = plain.scene.lights.radiance[0] if kind == "AREA" else plain.scene.facing.intensity[0]
+    after = noded.scene.lights.radiance[0] if kind == "AREA" else noded.scene.facing.intensity[0]
+    np.testing.assert_allclose(after, before * 3.0 * np.array([1.0, 0.5, 0.25]), rtol=1e-6)
+    assert not any("node" in w for w in warnings)
+
+
 def test_lights_of_unknown_use_warn(scene):
     add_camera(scene)
     bpy.ops.object.light_add(type="POINT")
@@ -238,7 +258,7 @@ def test_lights_of_unknown_use_warn(scene):
     bpy.context.object.data.energy = 0.0
     exported, warnings = export(scene)
     assert len(exported.scene.facing) == 0
-    assert any("zero power" in w and "Dark" in w for w in warnings)
+    assert any("zero or negative power" in w and "Dark" in w for w in warnings)
 
 
 def test_zero_size_light_warns_and_is_skipped(scene):
