@@ -264,3 +264,21 @@ def test_hard_lamp_highlight_matches_shadow_rays(small_light, monkeypatch):
     lit = sampled > 1e-3 * sampled.max()
     error = np.abs(exact - sampled)[lit].max() / sampled.max()
     assert (error < 3e-3) if small_light else (error > 0.02)
+
+
+@pytest.mark.parametrize("light", ["lamp", "area"])
+def test_cast_shadow_off_lets_the_light_through_blockers(light):
+    box = box_triangles((0.0, 0.0, 1.0), (1.0, 1.0, 0.2))
+    if light == "lamp":
+        shadowing, facing_lights = Lights.empty(), FacingLights.point([0.0, 0.0, 2.5], 0.2, 5.0).without_shadows()
+    else:
+        quad = np.array([(-0.3, -0.3, 2.5), (-0.3, 0.3, 2.5), (0.3, 0.3, 2.5), (0.3, -0.3, 2.5)])
+        shadowing, facing_lights = Lights(quad[None], np.array([4]), np.array([(5.0,) * 3]), np.array([False]),
+                                          np.array([False])), FacingLights.empty()
+    blocked = floor_scene(facing_lights, blockers=box)
+    blocked.lights = shadowing
+    free = floor_scene(facing_lights)
+    free.lights = shadowing
+    floor = render(blocked, CENTRES).depth > 4.99  # pixels that see the floor, not the box's top
+    np.testing.assert_allclose(irradiance(blocked)[floor], irradiance(free)[floor], rtol=1e-6)
+    assert irradiance(free)[floor].min() > 0 and (~floor).sum() > 10

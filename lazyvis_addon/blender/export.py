@@ -615,6 +615,7 @@ class _DepsgraphReader:
         self.light_polygons: list[np.ndarray] = []
         self.light_radiance: list[np.ndarray] = []
         self.light_names: list[str] = []
+        self.light_shadows: list[bool] = []  # Cast Shadow of each area light
         self.facing: list[FacingLights] = []  # point, spot and sun lights
         self.facing_names: list[str] = []
         self.skipped: dict[str, set[str]] = {}
@@ -796,8 +797,6 @@ class _DepsgraphReader:
         if obj.visible_camera:
             self.skip("area lights seen directly by the camera are not drawn (Cycles draws them when their "
                       "Ray Visibility > Camera is on)", name)
-        if not light.use_shadow:
-            self.skip("area lights always cast shadows in LazyVis; Cast Shadow off is ignored", name)
         if abs(light.spread - math.pi) > 1e-6:
             self.skip("area lights with a spread other than 180 degrees are rendered with spread 180 degrees",
                       name)
@@ -826,6 +825,7 @@ class _DepsgraphReader:
             return
         self.light_polygons.append(polygon)
         self.light_radiance.append(radiance)
+        self.light_shadows.append(bool(light.use_shadow))
         self.light_names.append(name)
         self.counts["area_lights"] += 1
 
@@ -868,8 +868,6 @@ class _DepsgraphReader:
         if obj.visible_camera and light.type != "SUN":
             self.skip("point and spot lights are not drawn where the camera sees them (Cycles draws a lamp of "
                       "radius above 0 when its Ray Visibility > Camera is on)", name)
-        if not light.use_shadow:
-            self.skip("lights always cast shadows in LazyVis; Cast Shadow off is ignored", name)
         if light.type == "SUN":
             towards = matrix[:3, 2]  # a sun shines along its local -Z
             if not np.linalg.norm(towards) > 0:
@@ -892,6 +890,8 @@ class _DepsgraphReader:
                     return
                 lamp = lamp.spot(np.linalg.inv(linear), float(light.spot_size), float(light.spot_blend))
             self.facing.append(lamp)
+        if not light.use_shadow:
+            self.facing[-1] = self.facing[-1].without_shadows()
         self.facing_names.append(name)
         self.counts[f"{kind}_lights"] = self.counts.get(f"{kind}_lights", 0) + 1
 
@@ -970,8 +970,9 @@ class _DepsgraphReader:
         emission = np.array([m.emission for m in self.materials]).reshape(-1, 3)
         radiance = np.concatenate([np.reshape(self.light_radiance, (-1, 3)), emission[emitter_material]])
         two_sided = np.arange(count) >= first
+        cast_shadow = np.concatenate([np.array(self.light_shadows, bool), np.ones(len(emitter_triangles), bool)])
         names.extend(self.materials[i].name for i in emitter_material)
-        return Lights(vertices, vertex_count, radiance, two_sided), names
+        return Lights(vertices, vertex_count, radiance, two_sided, cast_shadow), names
 
 
 def _geometric_normals(triangles: np.ndarray) -> np.ndarray:

@@ -47,6 +47,7 @@ class LightFrames:
     cap_centre, cap_radius       (L, 3), (L,): the lamp's centre and radius (a sun's direction, half-angle).
     spot_frame, spot_cos_half, spot_smooth   (L, 3, 3), (L,), (L,): the spot cone (``facing.spot_mask``).
     scene_light : (L,) int64     the light of passes and statistics (polygon lights, then facing lights).
+    cast_shadow : (L,) bool      False: nothing blocks the light (Cast Shadow off).
     """
 
     origin: np.ndarray
@@ -68,6 +69,7 @@ class LightFrames:
     spot_cos_half: np.ndarray | None = None
     spot_smooth: np.ndarray | None = None
     scene_light: np.ndarray | None = None
+    cast_shadow: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         count = len(self.vertex_count)
@@ -75,7 +77,7 @@ class LightFrames:
                         source=np.full(count, -1, np.int64), cap_centre=np.zeros((count, 3)),
                         cap_radius=np.zeros(count), spot_frame=np.broadcast_to(np.eye(3), (count, 3, 3)).copy(),
                         spot_cos_half=np.full(count, -2.0), spot_smooth=np.zeros(count),
-                        scene_light=np.arange(count, dtype=np.int64))
+                        scene_light=np.arange(count, dtype=np.int64), cast_shadow=np.ones(count, bool))
         for name, value in defaults.items():
             if getattr(self, name) is None:
                 setattr(self, name, value)
@@ -106,7 +108,7 @@ def light_frames(lights: Lights, facing=None, centre: np.ndarray | None = None, 
 
     joined = {}
     for name in ("origin", "tangent", "bitangent", "normal", "radiance", "two_sided", "area", "kind", "slot",
-                 "cap_centre", "cap_radius", "spot_frame", "spot_cos_half", "spot_smooth"):
+                 "cap_centre", "cap_radius", "spot_frame", "spot_cos_half", "spot_smooth", "cast_shadow"):
         joined[name] = np.concatenate([getattr(frames, name), extra[name]])
     joined["uv"] = np.concatenate([padded(frames.uv, width), padded(extra["uv"], width)])
     joined["vertices"] = np.concatenate([padded(frames.vertices, width), padded(extra["vertices"], width)])
@@ -129,7 +131,8 @@ def _polygon_frames(lights: Lights) -> LightFrames:
     rel = vertices - origin[:, None]
     uv = np.stack([np.einsum("lvk,lk->lv", rel, tangent), np.einsum("lvk,lk->lv", rel, bitangent)], axis=-1)
     return LightFrames(origin, tangent, bitangent, normal, uv, vertices, np.asarray(lights.vertex_count),
-                       np.asarray(lights.radiance, dtype=np.float64), np.asarray(lights.two_sided, bool), area)
+                       np.asarray(lights.radiance, dtype=np.float64), np.asarray(lights.two_sided, bool), area,
+                       cast_shadow=np.asarray(lights.cast_shadow, bool))
 
 
 def newell_normal(polygons: np.ndarray) -> np.ndarray:

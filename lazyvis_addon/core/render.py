@@ -130,6 +130,9 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
 
     if frames.any_facing:
         _warn_clamped_caps(surface, frames, progress)
+    if not frames.cast_shadow.all() and not settings.uses_silhouettes:
+        progress.warn("lights with Cast Shadow off cast shadows with the paper's blocker maps and the Monte Carlo "
+                      "integrators; the default silhouettes honour it")
     verify = lazy and settings.verify_rays > 0 and len(frames) > 0
     radiance, pass2_stats, missed = _illuminate(surface, frames, polygons, tracer, blockers, settings, pixel_global,
                                                 progress, scene.materials, verify, edges)
@@ -359,6 +362,16 @@ def _shade_silhouettes(part: SurfacePoints, bsdf: SurfaceBsdf, pixel_global: np.
     n_terms, rounds = 0, 0
     for lights in groups:  # lights of similar polygon size: a handful of groups
         couples, couple_pixel = couples_for(part, frames, np.broadcast_to(~lights[None, :], (n_points, len(frames))))
+        shadowless = ~frames.cast_shadow[couples.light]
+        if shadowless.any():  # Cast Shadow off: the whole clipped light, no detection, no lifted origins
+            free = np.flatnonzero(shadowless)
+            whole = VisiblePieces(couples, couple_pixel, couples.uv[free], couples.count[free], free, 0,
+                                  np.ones(len(free)))
+            free_weights = couple_weights(whole, part, frames, bsdf, settings, pixel_global)
+            result += reflected_radiance(n_points, frames, couples, couple_pixel, free_weights)
+            n_terms += len(free)
+            kept = np.flatnonzero(~shadowless)
+            couples, couple_pixel = couples.take(kept), couple_pixel[kept]
         # Couples seen from lifted origins (Shadow Terminator Geometry Offset) come as strips of their
         # lights, couples of their own: their terms add up per pixel like any lights'.
         couples, couple_pixel, origin_shift = terminator_couples(part, frames, couples, couple_pixel, lights)

@@ -139,12 +139,19 @@ class Lights:
         Emitted radiance per colour channel, W m^-2 sr^-1.
     two_sided : (L,) bool
         Emit from both sides (mesh emitters); one-sided lights emit to the side of their normal only.
+    cast_shadow : (L,) bool or None
+        False: nothing blocks the light (Blender's Cast Shadow off); None: all cast shadows.
     """
 
     vertices: np.ndarray
     vertex_count: np.ndarray
     radiance: np.ndarray
     two_sided: np.ndarray
+    cast_shadow: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.cast_shadow is None:
+            self.cast_shadow = np.ones(len(self.vertex_count), bool)
 
     @classmethod
     def from_polygons(cls, polygons, radiance, two_sided=None) -> "Lights":
@@ -170,7 +177,8 @@ class Lights:
         return len(self.vertex_count)
 
     def subset(self, keep: np.ndarray) -> "Lights":
-        return Lights(self.vertices[keep], self.vertex_count[keep], self.radiance[keep], self.two_sided[keep])
+        return Lights(self.vertices[keep], self.vertex_count[keep], self.radiance[keep], self.two_sided[keep],
+                      self.cast_shadow[keep])
 
 
 # Kinds of ``FacingLights``: how the cap of directions a receiver sees is sized.
@@ -200,6 +208,7 @@ class FacingLights:
                                 out (local = spot_frame @ (x - centre)); the cone opens along local -Z.
     spot_cos_half : (F,)        cos(Spot Size / 2); below -1: no cone (a point lamp or a sun).
     spot_smooth : (F,)          Spot Blend * (1 - cos_half): the width of the mask's smoothstep in cos.
+    cast_shadow : (F,) bool     False: nothing blocks the light (Cast Shadow off).
     """
 
     kind: np.ndarray
@@ -209,6 +218,7 @@ class FacingLights:
     spot_frame: np.ndarray | None = None
     spot_cos_half: np.ndarray | None = None
     spot_smooth: np.ndarray | None = None
+    cast_shadow: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.kind = np.asarray(self.kind, dtype=np.int64).reshape(-1)
@@ -222,6 +232,8 @@ class FacingLights:
             np.asarray(self.spot_cos_half, dtype=np.float64).reshape(count)
         self.spot_smooth = np.zeros(count) if self.spot_smooth is None else \
             np.asarray(self.spot_smooth, dtype=np.float64).reshape(count)
+        self.cast_shadow = np.ones(count, bool) if self.cast_shadow is None else \
+            np.asarray(self.cast_shadow, dtype=bool).reshape(count)
 
     @classmethod
     def empty(cls) -> "FacingLights":
@@ -234,7 +246,13 @@ class FacingLights:
         count = len(self)
         return FacingLights(self.kind, self.centre, self.radius, self.intensity,
                             np.broadcast_to(np.asarray(frame, dtype=np.float64), (count, 3, 3)).copy(),
-                            np.full(count, cos_half), np.full(count, min(max(blend, 0.0), 1.0) * (1.0 - cos_half)))
+                            np.full(count, cos_half), np.full(count, min(max(blend, 0.0), 1.0) * (1.0 - cos_half)),
+                            self.cast_shadow)
+
+    def without_shadows(self) -> "FacingLights":
+        """These lights with Cast Shadow off."""
+        return FacingLights(self.kind, self.centre, self.radius, self.intensity, self.spot_frame, self.spot_cos_half,
+                            self.spot_smooth, np.zeros(len(self), bool))
 
     @classmethod
     def point(cls, centre, radius: float, intensity, soft_falloff: bool = True) -> "FacingLights":
@@ -253,14 +271,16 @@ class FacingLights:
         if not parts:
             return cls.empty()
         return cls(*(np.concatenate([getattr(p, name) for p in parts]) for name in
-                     ("kind", "centre", "radius", "intensity", "spot_frame", "spot_cos_half", "spot_smooth")))
+                     ("kind", "centre", "radius", "intensity", "spot_frame", "spot_cos_half", "spot_smooth",
+                      "cast_shadow")))
 
     def __len__(self) -> int:
         return len(self.kind)
 
     def subset(self, keep: np.ndarray) -> "FacingLights":
         return FacingLights(self.kind[keep], self.centre[keep], self.radius[keep], self.intensity[keep],
-                            self.spot_frame[keep], self.spot_cos_half[keep], self.spot_smooth[keep])
+                            self.spot_frame[keep], self.spot_cos_half[keep], self.spot_smooth[keep],
+                            self.cast_shadow[keep])
 
 
 @dataclass
@@ -500,6 +520,7 @@ class Scene:
                for name, value in self.materials.arrays().items()},
             light_vertices=self.lights.vertices, light_vertex_count=self.lights.vertex_count,
             light_radiance=self.lights.radiance, light_two_sided=self.lights.two_sided,
+            light_cast_shadow=self.lights.cast_shadow,
             world_from_camera=camera.world_from_camera, resolution=np.array([camera.width, camera.height]),
             projection=np.array(camera.projection), screen_window=camera.screen_window,
             window=np.array(camera.window), background=self.background,
@@ -539,7 +560,8 @@ class Scene:
                             np.array(data["light_vertex_count"], dtype=np.int64),
                             np.array(data["light_radiance"], dtype=np.float64).reshape(count, 3),
                             np.array(data["light_two_sided"], bool) if "light_two_sided" in data
-                            else np.zeros(count, bool))
+                            else np.zeros(count, bool),
+                            np.array(data["light_cast_shadow"], bool) if "light_cast_shadow" in data else None)
             textures = []
             while f"texture_{len(textures)}_texels" in data:
                 srgb, interpolation, extension = (str(v) for v in data[f"texture_{len(textures)}_options"])
@@ -556,11 +578,13 @@ class Scene:
                        np.array(data["shading_normals"]) if "shading_normals" in data else None,
                        np.array(data["corner_uvs"]) if "corner_uvs" in data else None, textures,
                        np.array(data["terminator_offset"]) if "terminator_offset" in data else None,
-                       FacingLights(*(np.array(data["facing_" + name]) for name in FACING_ARRAYS))
+                       FacingLights(*(np.array(data["facing_" + name]) if "facing_" + name in data else None
+                                      for name in FACING_ARRAYS))
                        if "facing_kind" in data else FacingLights.empty())
 
 
-FACING_ARRAYS = ("kind", "centre", "radius", "intensity", "spot_frame", "spot_cos_half", "spot_smooth")
+FACING_ARRAYS = ("kind", "centre", "radius", "intensity", "spot_frame", "spot_cos_half", "spot_smooth",
+                 "cast_shadow")
 
 
 def _validated_facing(facing: FacingLights, progress: Progress) -> FacingLights:
@@ -622,4 +646,4 @@ def _validated_lights(lights: Lights, progress: Progress) -> Lights:
     if (turn < -1e-9 * size[:, None] ** 2).any():
         raise ValueError("light polygons must be convex")
     two_sided = np.asarray(lights.two_sided, bool)[keep]
-    return Lights(vertices, vertex_count, radiance, two_sided)
+    return Lights(vertices, vertex_count, radiance, two_sided, np.asarray(lights.cast_shadow, bool)[keep])

@@ -71,8 +71,8 @@ def glossy_floor(scene, roughness: float) -> None:
 
 
 def lamps_and_boxes(scene) -> None:
-    """Issue 14: boxes on a floor under two point lamps (Soft Falloff on, the disk; off, the sphere) and a
-    spot (scaled, rotated, a soft blend), with a Principled box at Specular IOR Level 0."""
+    """Issue 14: boxes on a floor under two point lamps (Soft Falloff on, the disk; off, the sphere, with
+    Cast Shadow off) and a spot (rotated, a soft blend), with a Principled box at Specular IOR Level 0."""
     add_camera(scene, location=(0.3, -5.2, 3.6), rotation=(math.radians(56), 0.0, math.radians(3)), lens=36.0)
     bpy.ops.mesh.primitive_plane_add(size=8.0)
     assign(bpy.context.object, node_material("Floor", Color=(0.6, 0.6, 0.6)))
@@ -82,7 +82,8 @@ def lamps_and_boxes(scene) -> None:
     bpy.ops.mesh.primitive_cube_add(size=0.5, location=(-0.9, -0.4, 0.6), rotation=(0.3, 0.2, 0.9))
     assign(bpy.context.object, node_material("Blue", Color=(0.2, 0.3, 0.8)))
     add_light("POINT", location=(-0.4, -0.6, 2.0), energy=150.0, shadow_soft_size=0.3, color=(1.0, 0.9, 0.8))
-    add_light("POINT", location=(1.6, 1.0, 1.5), energy=60.0, shadow_soft_size=0.15, use_soft_falloff=False)
+    add_light("POINT", location=(1.6, 1.0, 1.5), energy=60.0, shadow_soft_size=0.15, use_soft_falloff=False,
+              use_shadow=False)
     add_light("SPOT", location=(-1.4, 1.6, 2.6), rotation=(math.radians(-35), math.radians(-25), 0.0),
               scale=(1.0, 1.0, 1.0), energy=300.0, shadow_soft_size=0.2, spot_size=math.radians(55), spot_blend=0.3,
               color=(0.7, 0.8, 1.0))

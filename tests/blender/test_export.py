@@ -961,17 +961,22 @@ def test_unsupported_object_types_warn(scene):
     assert any("Fur" in w and "not rendered" in w for w in warnings)
 
 
-def test_ray_visibility_and_cast_shadow_warn(scene):
+def test_ray_visibility_warns_and_cast_shadow_is_exported(scene):
     add_camera(scene)
     bpy.ops.mesh.primitive_cube_add()
     bpy.context.object.name = "Ghost"
     bpy.context.object.visible_shadow = False
     light = add_area_light(name="Panel", size=1.0, energy=10.0, use_shadow=False)
     light.visible_camera = True
-    _, warnings = export(scene)
+    add_area_light(name="Shadowing", size=1.0, energy=10.0)
+    bpy.ops.object.light_add(type="SPOT")
+    bpy.context.object.data.use_shadow = False
+    exported, warnings = export(scene)
     assert any("Ray Visibility" in w and "Ghost" in w for w in warnings)
-    assert any("Cast Shadow" in w and "Panel" in w for w in warnings)
     assert any("seen directly" in w and "Panel" in w for w in warnings)
+    assert not any("Cast Shadow" in w for w in warnings)
+    np.testing.assert_array_equal(exported.scene.lights.cast_shadow, [False, True])
+    np.testing.assert_array_equal(exported.scene.facing.cast_shadow, [False])
 
 
 def test_panoramic_camera_is_a_clear_error(scene):
