@@ -339,6 +339,18 @@ def _linked_node(socket):
     return None if source is None else source.node
 
 
+def _constant_value(socket):
+    """A float input's value: unlinked, or fed by a Value node (through reroutes); None otherwise."""
+    if socket is None:
+        return None
+    if not socket.is_linked:
+        return float(socket.default_value)
+    source = _linked_node(socket)
+    if source is not None and source.bl_idname == "ShaderNodeValue":
+        return float(source.outputs[0].default_value)
+    return None
+
+
 def _unlinked(node, name: str):
     socket = node.inputs.get(name)
     if socket is None or socket.is_linked:
@@ -466,8 +478,9 @@ def _read_glossy(node, inputs: _Inputs) -> dict:
 def read_material(material) -> MaterialRecord | None:
     """A material's row of the material table, or None when its node setup cannot be read.
 
-    Read: Diffuse BSDF, Principled BSDF, Glossy BSDF, a Mix Shader of a Diffuse and a Glossy BSDF with a
-    constant factor, and Emission; a base colour may come from an Image Texture. What a readable node has
+    Read: Diffuse BSDF, Principled BSDF, Glossy BSDF, a Mix Shader of a Diffuse and a Glossy BSDF (or of an
+    Emission and a Diffuse BSDF) with a constant factor, Emission (its Strength constant or from a Value node),
+    and an Add Shader of an Emission and any of these; a base colour may come from an Image Texture. What a readable node has
     that LazyVis does not render is listed in ``MaterialRecord.issues`` (the exporter warns once per kind).
     """
     if material is None:
@@ -482,17 +495,34 @@ def read_material(material) -> MaterialRecord | None:
     surface = output.inputs["Surface"]
     if not surface.is_linked:
         return MaterialRecord(name, "black", (0.0, 0.0, 0.0))  # no closure: Cycles shades it black
-    node = _linked_node(surface)
-    if node is None:
+    return _read_shader(name, _linked_node(surface))
+
+
+def _read_shader(name: str, node, depth: int = 0) -> MaterialRecord | None:
+    """The record of the closure ``node`` outputs (None: unreadable). An Add Shader of an Emission and a
+    readable shader is that shader, emitting (how Cycles adds closures); Mix Shaders as ``_read_mix``."""
+    if node is None or depth > 8:
         return None
     kind = node.bl_idname
+    if kind == "ShaderNodeAddShader":
+        parts = [_read_shader(name, _linked_node(socket), depth + 1) for socket in node.inputs[:2]]
+        if any(p is None for p in parts):
+            return None
+        emitters = [p for p in parts if p.kind == "emission"]
+        if len(emitters) == 2:
+            return MaterialRecord(name, "emission", (0.0, 0.0, 0.0),
+                                  tuple(a + b for a, b in zip(emitters[0].emission, emitters[1].emission)))
+        if len(emitters) != 1:
+            return None  # two reflecting closures added: not a material LazyVis has
+        surface = next(p for p in parts if p.kind != "emission")
+        return replace(surface, emission=tuple(a + b for a, b in zip(surface.emission, emitters[0].emission)))
     inputs = _Inputs(node)
     if kind == "ShaderNodeBsdfDiffuse":
         return inputs.record(name, "diffuse", _read_diffuse(node, inputs))
     if kind in GLOSSY_IDNAMES:
         return inputs.record(name, "glossy", (0.0, 0.0, 0.0), diffuse_weight=0.0, **_read_glossy(node, inputs))
     if kind == "ShaderNodeEmission":
-        color, strength = _unlinked(node, "Color"), _unlinked(node, "Strength")
+        color, strength = _unlinked(node, "Color"), _constant_value(node.inputs.get("Strength"))
         if color is None or strength is None:
             return None
         return MaterialRecord(name, "emission", (0.0, 0.0, 0.0), tuple(np.array(color[:3]) * strength))
@@ -516,6 +546,17 @@ def _read_mix(name: str, node) -> MaterialRecord | None:
     first, second = _linked_node(node.inputs[1]), _linked_node(node.inputs[2])
     if first is None or second is None:
         return None
+    if "ShaderNodeEmission" in (first.bl_idname, second.bl_idname):
+        # An Emission mixed with a Diffuse BSDF (or another Emission): each weighed by its share.
+        weights = (1.0 - fac, fac)
+        records = [_read_shader(name, n) for n in (first, second)]
+        if any(r is None or r.kind not in ("emission", "diffuse") or r.texture is not None for r in records):
+            return None
+        emission = tuple(sum(w * r.emission[k] for w, r in zip(weights, records)) for k in range(3))
+        albedo = tuple(sum(w * r.albedo[k] for w, r in zip(weights, records) if r.kind == "diffuse") for k in range(3))
+        if all(r.kind == "emission" for r in records):
+            return MaterialRecord(name, "emission", (0.0, 0.0, 0.0), emission)
+        return MaterialRecord(name, "diffuse", albedo, emission)
     if first.bl_idname == "ShaderNodeBsdfDiffuse" and _is_glossy(second):
         diffuse, glossy, diffuse_weight, glossy_weight = first, second, 1.0 - fac, fac
     elif _is_glossy(first) and second.bl_idname == "ShaderNodeBsdfDiffuse":

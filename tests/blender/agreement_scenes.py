@@ -52,6 +52,32 @@ def emitter_panel(scene) -> None:
                    energy=6.0, normalize=False)
 
 
+def emitter_added(scene) -> None:
+    """Issue 14: a floor, a slab and a tilted panel whose material is an Emission (Strength from a Value node)
+    and a Diffuse BSDF joined by an Add Shader, as public scenes make emitters, beside a square area light."""
+    add_camera(scene, location=(0.0, -5.5, 3.0), rotation=(math.radians(62), 0.0, 0.0), lens=35.0)
+    bpy.ops.mesh.primitive_plane_add(size=8.0)
+    assign(bpy.context.object, node_material("Floor", Color=(0.7, 0.7, 0.7)))
+    bpy.ops.mesh.primitive_cube_add(size=1.0, location=(0.2, 0.4, 0.6), scale=(1.2, 0.1, 0.5))
+    assign(bpy.context.object, node_material("Slab", Color=(0.3, 0.6, 0.3)))
+    bpy.ops.mesh.primitive_plane_add(size=0.8, location=(-1.2, 1.2, 1.3), rotation=(math.radians(70), 0.0, 0.6))
+    material = node_material("Glow", "ShaderNodeEmission", Color=(1.0, 0.6, 0.3))
+    tree = material.node_tree
+    output = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial")
+    emission = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeEmission")
+    value = tree.nodes.new("ShaderNodeValue")
+    value.outputs[0].default_value = 5.0
+    tree.links.new(value.outputs[0], emission.inputs["Strength"])
+    diffuse = tree.nodes.new("ShaderNodeBsdfDiffuse")
+    diffuse.inputs["Color"].default_value = (0.5, 0.5, 0.5, 1.0)
+    join = tree.nodes.new("ShaderNodeAddShader")
+    tree.links.new(emission.outputs[0], join.inputs[0])
+    tree.links.new(diffuse.outputs[0], join.inputs[1])
+    tree.links.new(join.outputs[0], output.inputs["Surface"])
+    assign(bpy.context.object, material)
+    add_area_light(location=(1.3, -0.6, 2.2), rotation=(0.2, 0.35, 0.0), shape="SQUARE", size=0.5, energy=6.0)
+
+
 def glossy_floor(scene, roughness: float) -> None:
     """Issue 4's proof scene: a Principled floor (grey dielectric, Specular IOR Level 0.5) and a gold metal
     box of one roughness, a rectangle light whose reflection the camera sees in the floor, and a thin
@@ -210,6 +236,7 @@ CASES = (
     Case("sun_and_fence", (64, 48), build=sun_and_fence),
     Case("hard_lamps", (64, 48), build=hard_lamps),
     Case("room", (96, 72), blend="sample_blends/room.blend"),
+    Case("emitter_added", (64, 48), build=emitter_added),
     Case("room_matte", (96, 72), blend="sample_blends/room.blend", prepare=matte),
     # Issue 5: Blender's default pixel filter, LazyVis anti-aliasing with its defaults.
     Case("floating_boxes_filter1.5", (96, 96), blend="sample_blends/floating_boxes.blend", filter_width=DEFAULT_FILTER),

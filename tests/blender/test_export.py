@@ -15,7 +15,8 @@ from blender_helpers import add_area_light, add_camera, assign, node_material  #
 
 from lazyvis_addon.core.scene import FACING_DISK, FACING_SPHERE, FACING_SUN  # noqa: E402
 from lazyvis_addon.blender.export import (  # noqa: E402
-    DEFAULT_ALBEDO, border_window, ellipse_polygon, export_depsgraph, polygon_area_normal, screen_window)
+    DEFAULT_ALBEDO, border_window, ellipse_polygon, export_depsgraph, polygon_area_normal, read_material,
+    screen_window)
 from lazyvis_addon.core.progress import Progress  # noqa: E402
 from lazyvis_addon.core.scene import Scene  # noqa: E402
 
@@ -983,3 +984,43 @@ def test_panoramic_camera_is_a_clear_error(scene):
     add_camera(scene, type="PANO")
     with pytest.raises(ValueError, match="perspective and orthographic cameras only"):
         export(scene)
+
+
+def _emitter_material(kind: str):
+    """A material whose output is fed by ``kind``: "add" (Add Shader of an Emission of strength 4 from a
+    Value node and a Diffuse BSDF), "mix" (Mix Shader, factor 0.25, of an Emission of strength 4 and a
+    Diffuse BSDF)."""
+    material = bpy.data.materials.new(kind)
+    tree = material.node_tree
+    output = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial")
+    for node in [n for n in tree.nodes if n != output]:
+        tree.nodes.remove(node)
+    emission = tree.nodes.new("ShaderNodeEmission")
+    emission.inputs["Color"].default_value = (1.0, 0.5, 0.25, 1.0)
+    diffuse = tree.nodes.new("ShaderNodeBsdfDiffuse")
+    diffuse.inputs["Color"].default_value = (0.2, 0.4, 0.6, 1.0)
+    if kind == "add":
+        value = tree.nodes.new("ShaderNodeValue")
+        value.outputs[0].default_value = 4.0
+        tree.links.new(value.outputs[0], emission.inputs["Strength"])
+        join = tree.nodes.new("ShaderNodeAddShader")
+        tree.links.new(emission.outputs[0], join.inputs[0])
+        tree.links.new(diffuse.outputs[0], join.inputs[1])
+    else:
+        emission.inputs["Strength"].default_value = 4.0
+        join = tree.nodes.new("ShaderNodeMixShader")
+        join.inputs[0].default_value = 0.25
+        tree.links.new(emission.outputs[0], join.inputs[1])
+        tree.links.new(diffuse.outputs[0], join.inputs[2])
+    tree.links.new(join.outputs[0], output.inputs["Surface"])
+    return material
+
+
+@pytest.mark.parametrize("kind, emission_weight, diffuse_weight", [("add", 1.0, 1.0), ("mix", 0.75, 0.25)])
+def test_emission_added_or_mixed_with_a_diffuse_bsdf(kind, emission_weight, diffuse_weight):
+    """Issue 14: public scenes' emitters are an Emission and a Diffuse BSDF joined by an Add Shader (or a Mix
+    Shader), the Strength often from a Value node: the surface both emits and reflects, as in Cycles."""
+    record = read_material(_emitter_material(kind))
+    np.testing.assert_allclose(record.emission, np.array([1.0, 0.5, 0.25]) * 4.0 * emission_weight, rtol=1e-6)
+    np.testing.assert_allclose(record.albedo, np.array([0.2, 0.4, 0.6]) * diffuse_weight, rtol=1e-6)
+    assert record.is_emitter and record.kind == "diffuse"
