@@ -657,6 +657,7 @@ class _DepsgraphReader:
         self.light_radiance: list[np.ndarray] = []
         self.light_names: list[str] = []
         self.light_shadows: list[bool] = []  # Cast Shadow of each area light
+        self.light_spreads: list[float] = []  # and its Spread (radians)
         self.facing: list[FacingLights] = []  # point, spot and sun lights
         self.facing_names: list[str] = []
         self.skipped: dict[str, set[str]] = {}
@@ -838,9 +839,6 @@ class _DepsgraphReader:
         if obj.visible_camera:
             self.skip("area lights seen directly by the camera are not drawn (Cycles draws them when their "
                       "Ray Visibility > Camera is on)", name)
-        if abs(light.spread - math.pi) > 1e-6:
-            self.skip("area lights with a spread other than 180 degrees are rendered with spread 180 degrees",
-                      name)
         if light.shape in ("SQUARE", "RECTANGLE"):
             size_y = light.size if light.shape == "SQUARE" else light.size_y
             local = rectangle_polygon(light.size, size_y)
@@ -867,6 +865,7 @@ class _DepsgraphReader:
         self.light_polygons.append(polygon)
         self.light_radiance.append(radiance)
         self.light_shadows.append(bool(light.use_shadow))
+        self.light_spreads.append(float(light.spread) if abs(light.spread - math.pi) > 1e-6 else math.pi)
         self.light_names.append(name)
         self.counts["area_lights"] += 1
 
@@ -1012,8 +1011,9 @@ class _DepsgraphReader:
         radiance = np.concatenate([np.reshape(self.light_radiance, (-1, 3)), emission[emitter_material]])
         two_sided = np.arange(count) >= first
         cast_shadow = np.concatenate([np.array(self.light_shadows, bool), np.ones(len(emitter_triangles), bool)])
+        spread = np.concatenate([np.array(self.light_spreads, np.float64), np.full(len(emitter_triangles), math.pi)])
         names.extend(self.materials[i].name for i in emitter_material)
-        return Lights(vertices, vertex_count, radiance, two_sided, cast_shadow), names
+        return Lights(vertices, vertex_count, radiance, two_sided, cast_shadow, spread), names
 
 
 def _geometric_normals(triangles: np.ndarray) -> np.ndarray:

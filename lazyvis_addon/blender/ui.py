@@ -233,8 +233,6 @@ class LAZYVIS_LIGHT_PT_light(LazyVisPanel, bpy.types.Panel):
             sub.prop(light, "size", text="Size X")
             sub.prop(light, "size_y", text="Y")
         col.prop(light, "spread")
-        if abs(light.spread - math.pi) > 1e-6:
-            col.label(text="LazyVis renders a spread of 180 degrees", icon='INFO')
 
 
 # -- Material and world ----------------------------------------------------------------------------------

@@ -131,7 +131,7 @@ def facing_frames(facing: FacingLights, centre: np.ndarray, extent: float) -> di
                 source=source, cap_centre=np.where(is_sun[:, None], towards[source], facing.centre[source]),
                 cap_radius=radius[source], spot_frame=facing.spot_frame[source],
                 spot_cos_half=facing.spot_cos_half[source], spot_smooth=facing.spot_smooth[source],
-                cast_shadow=facing.cast_shadow[source])
+                cast_shadow=facing.cast_shadow[source], spread=np.full(len(source), np.pi))
 
 
 def cap_polygons(frames, light: np.ndarray, position: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -300,14 +300,16 @@ def too_close(frames, light: int, points: np.ndarray) -> np.ndarray:
 
 
 def compile_facing():
-    """Compile ``_cap_polygons`` and ``_masked_integrals`` (or load them from Numba's cache) on one-receiver
-    inputs; returns them."""
+    """Compile ``_cap_polygons``, ``_masked_integrals`` and ``_spread_integrals`` (or load them from Numba's
+    cache) on one-receiver inputs; returns them."""
     one, three, i = np.zeros(1), np.zeros((1, 3)), np.zeros(1, np.int64)
     _cap_polygons(i, three, i, i, three, three, three, three, three, one, LAMP_AXES, 1.0, 1.0, 1.0,
                   np.empty((1, FACING_VERTICES, 2)), np.empty(1, np.int64), np.empty(1, np.bool_))
     _masked_integrals(np.zeros((1, 3, 2)), i, one, i, three, three, i, three, three, three, np.zeros((1, 3, 3)),
                       one, one, SPOT_POINTS, SPOT_WEIGHTS, np.zeros(1), np.zeros(1))
-    return _cap_polygons, _masked_integrals
+    _spread_integrals(np.zeros((1, 3, 2)), i, one, i, three, three, i, three, three, three, one, one, SPOT_POINTS,
+                      SPOT_WEIGHTS, np.zeros(1), np.zeros(1))
+    return _cap_polygons, _masked_integrals, _spread_integrals
 
 
 # ------------------------------------------------------------------------------------------------------
@@ -436,3 +438,141 @@ def _masked_integrals(uv, count, sign, couple, local, normal, light, tangent, bi
                 total_plain += value
         masked[couple[p]] += sign[p] * total_masked
         plain[couple[p]] += sign[p] * total_plain
+
+
+# ------------------------------------------------------------------------------------------------------
+# Area light Spread
+# ------------------------------------------------------------------------------------------------------
+# Cycles' Spread (area_light_spread_attenuation, measured against Cycles 5.0.1): emission towards angle t
+# from the light's normal is weighted by max(tan a - tan t, 0) N, a = Spread / 2, N = 1 / (tan a - a)
+# (3 / a^3 below a = 0.05), which keeps the light's power. Seen from a receiver at height h above the
+# light, tan t is the lateral distance r in the light's plane over h: only the disk r < h tan a emits
+# towards it, and there the weight falls linearly with r. The light is clipped to the regular polygon of
+# SPREAD_SIDES sides inscribed in that disk, so that the weight is smooth over every piece but at the foot
+# itself (what the slivers left out carry is ~3 (1 - cos(pi / sides))^2 of the light, 4e-6), and
+# integrated over the visible pieces by the spot's Gauss rule.
+SPREAD_SIDES = 64
+
+
+def spread_normalisation(spread: np.ndarray) -> np.ndarray:
+    """Cycles' normalize_spread (L,) for Spreads (L,) radians: 1 / (tan a - a), 3 / a^3 below a = 0.05."""
+    half = 0.5 * np.asarray(spread, np.float64)
+    with np.errstate(divide="ignore"):
+        return np.where(half > 0.05, 1.0 / (np.tan(np.minimum(half, 0.5 * np.pi - 1e-9)) - half),
+                        3.0 / np.maximum(half, 1e-300) ** 3)
+
+
+def spread_lines(local: np.ndarray, spread: np.ndarray) -> np.ndarray:
+    """Lines (N, SPREAD_SIDES, 3) (a, b, c: keep a u + b v + c >= 0) of the regular polygon inscribed in the
+    disk of radius |h| tan(spread / 2) about each receiver's foot (u_x, v_x) in its light's plane (``local``
+    (N, 3): u_x, v_x, h)."""
+    radius = np.abs(local[:, 2]) * np.tan(np.minimum(0.5 * spread, 0.5 * np.pi - 1e-9))
+    angle = 2.0 * np.pi * np.arange(SPREAD_SIDES) / SPREAD_SIDES
+    cos, sin = np.cos(angle)[None, :], np.sin(angle)[None, :]
+    lines = np.empty((len(local), SPREAD_SIDES, 3))
+    lines[..., 0], lines[..., 1] = -cos, -sin
+    lines[..., 2] = cos * local[:, :1] + sin * local[:, 1:2] + radius[:, None] * math.cos(math.pi / SPREAD_SIDES)
+    return lines
+
+
+def spread_factors(frames, couples, couple_pixel: np.ndarray, shading_normal: np.ndarray, piece_sets) -> np.ndarray:
+    """Per couple (Nc,) float64: the Spread's weight over its visible light, ∫ w cos / ∫ cos (1 for lights
+    without a Spread; can exceed 1: the weight keeps the light's power, so it is above 1 towards the normal).
+    Arguments as ``spot_factors``."""
+    n_couples = len(couple_pixel)
+    factor = np.ones(n_couples)
+    spread_light = frames.spread[couples.light] < np.pi
+    if not spread_light.any():
+        return factor
+    weighted, plain = np.zeros(n_couples), np.zeros(n_couples)
+    normalisation = spread_normalisation(frames.spread)
+    tan_half = np.tan(np.minimum(0.5 * frames.spread, 0.5 * np.pi - 1e-9))
+    for uv, count, couple, sign in piece_sets:  # a couple of piece sets
+        rows = np.flatnonzero(spread_light[couple])
+        if len(rows) == 0:
+            continue
+        c = couple[rows]
+        l = couples.light[c]
+        _spread_integrals(np.ascontiguousarray(uv[rows], np.float64), np.ascontiguousarray(count[rows], np.int64),
+                          np.ones(len(rows)) if sign is None else np.ascontiguousarray(sign[rows], np.float64),
+                          np.ascontiguousarray(c, np.int64), np.ascontiguousarray(couples.local[c], np.float64),
+                          np.ascontiguousarray(shading_normal[couple_pixel[c]], np.float64),
+                          np.ascontiguousarray(l, np.int64), frames.tangent, frames.bitangent, frames.normal,
+                          tan_half, normalisation, SPOT_POINTS, SPOT_WEIGHTS, weighted, plain)
+    rows = np.flatnonzero(spread_light)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        factor[rows] = np.where(plain[rows] > 0, np.maximum(weighted[rows], 0.0) / plain[rows], 0.0)
+    return factor
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _spread_triangle(au, av, bu, bv, cu, cv, ux, vx, h, l, p, normal, tangent, bitangent, light_normal, tan_half,
+                     normalisation, points, weights, d):
+    """The Gauss rule's (weighted, plain) integrals over the triangle a, b, c of the light's plane; the rule
+    collapses onto b (``_gauss_triangle``: x = s, y = t (1 - s)), where the weight's kink is put."""
+    eu, ev, fu, fv = bu - au, bv - av, cu - au, cv - av
+    area2 = abs(eu * fv - ev * fu)
+    total_weighted, total_plain = 0.0, 0.0
+    for q in range(len(weights)):
+        u = au + points[q, 0] * eu + points[q, 1] * fu - ux
+        v = av + points[q, 0] * ev + points[q, 1] * fv - vx
+        for k3 in range(3):
+            d[k3] = u * tangent[l, k3] + v * bitangent[l, k3] - h * light_normal[l, k3]
+        length = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        cosine = (d[0] * normal[p, 0] + d[1] * normal[p, 1] + d[2] * normal[p, 2]) / length
+        if cosine <= 0.0:
+            continue
+        value = weights[q] * area2 * abs(h) / (length * length * length) * cosine
+        total_weighted += value * max(tan_half[l] - np.sqrt(u * u + v * v) / abs(h), 0.0) * normalisation[l]
+        total_plain += value
+    return total_weighted, total_plain
+
+
+@njit(cache=True, nogil=True)
+def _spread_integrals(uv, count, sign, couple, local, normal, light, tangent, bitangent, light_normal, tan_half,
+                      normalisation, points, weights, weighted, plain):
+    """As ``_masked_integrals``, the weight max(tan a - r / |h|, 0) N of the Spread (r the point's distance
+    from the receiver's foot F in the light's plane). The weight has a cone's tip at F, so each piece is cut
+    into the signed triangles (F, v_k, v_k+1) (their sum is the piece, wherever F lies) and the rule
+    collapses onto F, where the weight is smooth in the rule's coordinates (a 20 x 20 m light under a 60
+    degree Spread: fanned from a vertex 1e-3 high, from F 2e-6)."""
+    d = np.empty(3)
+    for p in range(len(count)):
+        l = light[p]
+        ux, vx, h = local[p, 0], local[p, 1], local[p, 2]
+        n = count[p]
+        doubled = 0.0
+        for k in range(n):
+            j = k + 1 if k + 1 < n else 0
+            doubled += uv[p, k, 0] * uv[p, j, 1] - uv[p, j, 0] * uv[p, k, 1]
+        orient = 1.0 if doubled >= 0 else -1.0
+        total_weighted, total_plain = 0.0, 0.0
+        for k in range(n):
+            j = k + 1 if k + 1 < n else 0
+            au, av, cu, cv = uv[p, k, 0], uv[p, k, 1], uv[p, j, 0], uv[p, j, 1]
+            turn = (au - ux) * (cv - vx) - (av - vx) * (cu - ux)  # (F, v_k, v_k+1)'s orientation
+            if turn == 0.0:
+                continue
+            w, q = _spread_triangle(au, av, ux, vx, cu, cv, ux, vx, h, l, p, normal, tangent, bitangent,
+                                    light_normal, tan_half, normalisation, points, weights, d)
+            factor = orient if turn > 0 else -orient
+            total_weighted += factor * w
+            total_plain += factor * q
+        weighted[couple[p]] += sign[p] * total_weighted
+        plain[couple[p]] += sign[p] * total_plain
+
+
+def direction_spread(frames, light: np.ndarray, direction: np.ndarray, side: np.ndarray) -> np.ndarray:
+    """The Spread's weight (N,) along shadow rays leaving receivers in ``direction`` (N, 3) towards lights
+    ``light`` (N,) seen from ``side`` (N,) (+1 / -1 of a two-sided light); 1 for lights without a Spread."""
+    out = np.ones(len(light))
+    rows = np.flatnonzero(frames.spread[light] < np.pi)
+    if len(rows) == 0:
+        return out
+    l = light[rows]
+    emitted = -direction[rows] / np.maximum(np.linalg.norm(direction[rows], axis=1, keepdims=True), 1e-300)
+    cosine = np.einsum("nk,nk->n", emitted, side[rows, None] * frames.normal[l])
+    tangent = np.sqrt(np.maximum(1.0 - cosine ** 2, 0.0)) / np.maximum(cosine, 1e-300)
+    tan_half = np.tan(np.minimum(0.5 * frames.spread[l], 0.5 * np.pi - 1e-9))
+    out[rows] = np.where(cosine > 0, np.maximum(tan_half - tangent, 0.0) * spread_normalisation(frames.spread[l]), 0.0)
+    return out

@@ -48,6 +48,7 @@ class LightFrames:
     spot_frame, spot_cos_half, spot_smooth   (L, 3, 3), (L,), (L,): the spot cone (``facing.spot_mask``).
     scene_light : (L,) int64     the light of passes and statistics (polygon lights, then facing lights).
     cast_shadow : (L,) bool      False: nothing blocks the light (Cast Shadow off).
+    spread : (L,) float64        Cycles' area light Spread, radians (pi: Lambertian; ``Lights.spread``).
     """
 
     origin: np.ndarray
@@ -70,6 +71,7 @@ class LightFrames:
     spot_smooth: np.ndarray | None = None
     scene_light: np.ndarray | None = None
     cast_shadow: np.ndarray | None = None
+    spread: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         count = len(self.vertex_count)
@@ -77,7 +79,8 @@ class LightFrames:
                         source=np.full(count, -1, np.int64), cap_centre=np.zeros((count, 3)),
                         cap_radius=np.zeros(count), spot_frame=np.broadcast_to(np.eye(3), (count, 3, 3)).copy(),
                         spot_cos_half=np.full(count, -2.0), spot_smooth=np.zeros(count),
-                        scene_light=np.arange(count, dtype=np.int64), cast_shadow=np.ones(count, bool))
+                        scene_light=np.arange(count, dtype=np.int64), cast_shadow=np.ones(count, bool),
+                        spread=np.full(count, np.pi))
         for name, value in defaults.items():
             if getattr(self, name) is None:
                 setattr(self, name, value)
@@ -108,7 +111,7 @@ def light_frames(lights: Lights, facing=None, centre: np.ndarray | None = None, 
 
     joined = {}
     for name in ("origin", "tangent", "bitangent", "normal", "radiance", "two_sided", "area", "kind", "slot",
-                 "cap_centre", "cap_radius", "spot_frame", "spot_cos_half", "spot_smooth", "cast_shadow"):
+                 "cap_centre", "cap_radius", "spot_frame", "spot_cos_half", "spot_smooth", "cast_shadow", "spread"):
         joined[name] = np.concatenate([getattr(frames, name), extra[name]])
     joined["uv"] = np.concatenate([padded(frames.uv, width), padded(extra["uv"], width)])
     joined["vertices"] = np.concatenate([padded(frames.vertices, width), padded(extra["vertices"], width)])
@@ -132,7 +135,7 @@ def _polygon_frames(lights: Lights) -> LightFrames:
     uv = np.stack([np.einsum("lvk,lk->lv", rel, tangent), np.einsum("lvk,lk->lv", rel, bitangent)], axis=-1)
     return LightFrames(origin, tangent, bitangent, normal, uv, vertices, np.asarray(lights.vertex_count),
                        np.asarray(lights.radiance, dtype=np.float64), np.asarray(lights.two_sided, bool), area,
-                       cast_shadow=np.asarray(lights.cast_shadow, bool))
+                       cast_shadow=np.asarray(lights.cast_shadow, bool), spread=np.asarray(lights.spread, np.float64))
 
 
 def newell_normal(polygons: np.ndarray) -> np.ndarray:
@@ -575,9 +578,18 @@ def receiver_light(position: np.ndarray, geometric_normal: np.ndarray, shading_n
         polygon_count = polygon_count.copy()
         polygon_count[facing_rows] = np.where(lit[facing_rows], cap_count, 0)
     uv, count = clip_by_lines(polygon_uv, polygon_count, horizons)
-    uv = trim(uv, count)
     local = np.stack([np.einsum("nk,nk->n", rel, frames.tangent[light]),
                       np.einsum("nk,nk->n", rel, frames.bitangent[light]), height], axis=1)
+    spread_rows = np.flatnonzero(frames.spread[light] < np.pi)
+    if len(spread_rows):  # a Spread below 180 degrees: only the disk of the light that emits towards x
+        from .facing import spread_lines
+        lines = spread_lines(local[spread_rows], frames.spread[light[spread_rows]])
+        narrowed, narrowed_count = clip_by_lines(uv[spread_rows], count[spread_rows], lines)
+        uv = pad_to(uv, narrowed.shape[1])
+        uv[spread_rows] = narrowed
+        count = count.copy()
+        count[spread_rows] = narrowed_count
+    uv = trim(uv, count)
     return ReceiverLight(light, uv, count, side, local, rel)
 
 

@@ -19,7 +19,7 @@ from . import rng
 from .blocker_map import BlockerMap, first_blocker
 from .blockers import BlockerPolygons, silhouette_planes
 from .bsdf import SurfaceBsdf
-from .facing import direction_mask, spot_factors, taken_planes
+from .facing import direction_mask, direction_spread, spot_factors, spread_factors, taken_planes
 from .geometry import (PLANE_EPS, LightFrames, ReceiverLight, blocker_in_front_of_light, clip_convex, cone_planes,
                        pad_to, plane_lines, polygon_area_2d, projected_solid_angle, projected_solid_angle_uv, receiver_light,
                        split_convex, trim)
@@ -629,13 +629,20 @@ def couple_weights(pieces: VisiblePieces, surface: SurfacePoints, frames: LightF
     each couple's integrals (``facing.spot_factors``).
     """
     weights = _couple_weights(pieces, surface, frames, bsdf, settings, pixel_global, more, clamp)
-    if not (frames.spot_cos_half[pieces.couples.light] >= -1.0).any():
+    light = pieces.couples.light
+    coned, spread = (frames.spot_cos_half[light] >= -1.0).any(), (frames.spread[light] < np.pi).any()
+    if not (coned or spread):
         return weights
     sets = [(pieces.uv, pieces.count, pieces.couple, pieces.sign)]
     if more is not None:
         sets.append((more.uv, more.count, more.couple, more.sign))
-    factor = spot_factors(frames, pieces.couples, pieces.couple_pixel, surface.shading_normal, sets)
-    return weights * factor[:, None]
+    if coned:
+        weights = weights * spot_factors(frames, pieces.couples, pieces.couple_pixel, surface.shading_normal,
+                                         sets)[:, None]
+    if spread:
+        weights = weights * spread_factors(frames, pieces.couples, pieces.couple_pixel, surface.shading_normal,
+                                           sets)[:, None]
+    return weights
 
 
 def _couple_weights(pieces: VisiblePieces, surface: SurfacePoints, frames: LightFrames, bsdf: SurfaceBsdf,
@@ -788,6 +795,9 @@ def standard_mc(surface: SurfacePoints, frames: LightFrames, tracer, bsdf: Surfa
         estimate[shown] = bsdf.value(pixel[shown], direction[shown]) * (cosine[shown] / pdf[shown])[:, None]
         if frames.any_facing:  # a spot's cone, on each shadow ray's direction as Cycles evaluates it
             estimate[shown] *= direction_mask(frames, light[shown], direction[shown])[:, None]
+        if (frames.spread < np.pi).any():  # an area light's Spread, likewise
+            estimate[shown] *= direction_spread(frames, light[shown], direction[shown],
+                                                couples.side[rows[shown]])[:, None]
         for c in range(3):  # colour channels
             weights[:, c] += np.bincount(rows, weights=estimate[:, c], minlength=n_couples)
         cast += int(good.sum())

@@ -141,6 +141,9 @@ class Lights:
         Emit from both sides (mesh emitters); one-sided lights emit to the side of their normal only.
     cast_shadow : (L,) bool or None
         False: nothing blocks the light (Blender's Cast Shadow off); None: all cast shadows.
+    spread : (L,) float64 or None
+        Cycles' area light Spread (radians, 0..pi): emission towards angle t from the normal is weighted by
+        max(tan(s/2) - tan t, 0) / (tan(s/2) - s/2) (``facing.spread_weights``); None or pi: Lambertian.
     """
 
     vertices: np.ndarray
@@ -148,10 +151,13 @@ class Lights:
     radiance: np.ndarray
     two_sided: np.ndarray
     cast_shadow: np.ndarray | None = None
+    spread: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.cast_shadow is None:
             self.cast_shadow = np.ones(len(self.vertex_count), bool)
+        if self.spread is None:
+            self.spread = np.full(len(self.vertex_count), np.pi)
 
     @classmethod
     def from_polygons(cls, polygons, radiance, two_sided=None) -> "Lights":
@@ -178,7 +184,7 @@ class Lights:
 
     def subset(self, keep: np.ndarray) -> "Lights":
         return Lights(self.vertices[keep], self.vertex_count[keep], self.radiance[keep], self.two_sided[keep],
-                      self.cast_shadow[keep])
+                      self.cast_shadow[keep], self.spread[keep])
 
 
 # Kinds of ``FacingLights``: how the cap of directions a receiver sees is sized.
@@ -520,7 +526,7 @@ class Scene:
                for name, value in self.materials.arrays().items()},
             light_vertices=self.lights.vertices, light_vertex_count=self.lights.vertex_count,
             light_radiance=self.lights.radiance, light_two_sided=self.lights.two_sided,
-            light_cast_shadow=self.lights.cast_shadow,
+            light_cast_shadow=self.lights.cast_shadow, light_spread=self.lights.spread,
             world_from_camera=camera.world_from_camera, resolution=np.array([camera.width, camera.height]),
             projection=np.array(camera.projection), screen_window=camera.screen_window,
             window=np.array(camera.window), background=self.background,
@@ -561,7 +567,8 @@ class Scene:
                             np.array(data["light_radiance"], dtype=np.float64).reshape(count, 3),
                             np.array(data["light_two_sided"], bool) if "light_two_sided" in data
                             else np.zeros(count, bool),
-                            np.array(data["light_cast_shadow"], bool) if "light_cast_shadow" in data else None)
+                            np.array(data["light_cast_shadow"], bool) if "light_cast_shadow" in data else None,
+                            np.array(data["light_spread"], np.float64) if "light_spread" in data else None)
             textures = []
             while f"texture_{len(textures)}_texels" in data:
                 srgb, interpolation, extension = (str(v) for v in data[f"texture_{len(textures)}_options"])
@@ -646,4 +653,5 @@ def _validated_lights(lights: Lights, progress: Progress) -> Lights:
     if (turn < -1e-9 * size[:, None] ** 2).any():
         raise ValueError("light polygons must be convex")
     two_sided = np.asarray(lights.two_sided, bool)[keep]
-    return Lights(vertices, vertex_count, radiance, two_sided, np.asarray(lights.cast_shadow, bool)[keep])
+    spread = np.clip(np.asarray(lights.spread, dtype=np.float64).reshape(-1), 0.0, np.pi)
+    return Lights(vertices, vertex_count, radiance, two_sided, np.asarray(lights.cast_shadow, bool)[keep], spread[keep])

@@ -78,6 +78,22 @@ def emitter_added(scene) -> None:
     add_area_light(location=(1.3, -0.6, 2.2), rotation=(0.2, 0.35, 0.0), shape="SQUARE", size=0.5, energy=6.0)
 
 
+def spread_lights(scene) -> None:
+    """Issue 14: a floor and two boxes under a square area light of Spread 60 degrees and a rectangle of
+    Spread 120 degrees, tilted, so that both the spread's edge and its weight fall across the image."""
+    add_camera(scene, location=(0.0, -5.0, 3.4), rotation=(math.radians(58), 0.0, 0.0), lens=36.0)
+    bpy.ops.mesh.primitive_plane_add(size=8.0)
+    assign(bpy.context.object, node_material("Floor", Color=(0.6, 0.6, 0.6)))
+    bpy.ops.mesh.primitive_cube_add(size=0.6, location=(0.5, 0.3, 0.3), rotation=(0.0, 0.0, 0.4))
+    assign(bpy.context.object, node_material("Box", Color=(0.7, 0.4, 0.3)))
+    bpy.ops.mesh.primitive_cube_add(size=0.4, location=(-0.9, -0.3, 0.5))
+    assign(bpy.context.object, node_material("Cube", Color=(0.3, 0.5, 0.7)))
+    add_area_light(location=(-0.6, 0.2, 2.0), rotation=(0.2, -0.3, 0.0), shape="SQUARE", size=1.2, energy=120.0,
+                   spread=math.radians(60))
+    add_area_light(location=(1.4, -0.5, 1.6), rotation=(0.5, 0.6, 0.0), shape="RECTANGLE", size=0.8, size_y=0.5,
+                   energy=60.0, spread=math.radians(120))
+
+
 def glossy_floor(scene, roughness: float) -> None:
     """Issue 4's proof scene: a Principled floor (grey dielectric, Specular IOR Level 0.5) and a gold metal
     box of one roughness, a rectangle light whose reflection the camera sees in the floor, and a thin
@@ -237,6 +253,7 @@ CASES = (
     Case("hard_lamps", (64, 48), build=hard_lamps),
     Case("room", (96, 72), blend="sample_blends/room.blend"),
     Case("emitter_added", (64, 48), build=emitter_added),
+    Case("spread_lights", (64, 48), build=spread_lights),
     Case("room_matte", (96, 72), blend="sample_blends/room.blend", prepare=matte),
     # Issue 5: Blender's default pixel filter, LazyVis anti-aliasing with its defaults.
     Case("floating_boxes_filter1.5", (96, 96), blend="sample_blends/floating_boxes.blend", filter_width=DEFAULT_FILTER),

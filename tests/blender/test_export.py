@@ -181,11 +181,13 @@ def test_light_temperature_tints_the_colour(scene):
     np.testing.assert_allclose(exported.scene.lights.radiance[0], expected, rtol=1e-6)
 
 
-def test_light_spread_warns(scene):
+def test_light_spread_is_exported(scene):
     add_camera(scene)
     add_area_light(name="Narrow", size=1.0, energy=10.0, spread=math.radians(60))
-    _, warnings = export(scene)
-    assert any("spread" in w and "Narrow" in w for w in warnings)
+    add_area_light(name="Wide", size=1.0, energy=10.0)
+    exported, warnings = export(scene)
+    np.testing.assert_allclose(exported.scene.lights.spread, [math.radians(60), math.pi], rtol=1e-6)
+    assert not any("spread" in w for w in warnings)
 
 
 def test_point_spot_sun_lights_are_exported_as_cycles_renders_them(scene):
