@@ -376,24 +376,33 @@ def spot_factors(frames, couples, couple_pixel: np.ndarray, shading_normal: np.n
         return factor
     is_rim = np.zeros(n_couples, bool)
     is_rim[rim] = True
-    masked, plain = np.zeros(n_couples), np.zeros(n_couples)
-    for uv, count, couple, sign in piece_sets:  # a couple of piece sets
-        rows = np.flatnonzero(is_rim[couple])
-        if len(rows) == 0:
-            continue
-        c = couple[rows]
-        l = couples.light[c]
-        _masked_integrals(np.ascontiguousarray(uv[rows], np.float64), np.ascontiguousarray(count[rows], np.int64),
-                          np.ones(len(rows)) if sign is None else np.ascontiguousarray(sign[rows], np.float64),
-                          np.ascontiguousarray(c, np.int64), np.ascontiguousarray(couples.local[c], np.float64),
-                          np.ascontiguousarray(shading_normal[couple_pixel[c]], np.float64),
-                          np.ascontiguousarray(l, np.int64), frames.tangent, frames.bitangent, frames.normal,
-                          frames.spot_frame, frames.spot_cos_half, frames.spot_smooth, SPOT_POINTS, SPOT_WEIGHTS,
-                          masked, plain)
+    masked, plain = _weighted_integrals(_masked_integrals, (frames.spot_frame, frames.spot_cos_half,
+                                                            frames.spot_smooth), frames, couples, couple_pixel,
+                                        shading_normal, piece_sets, is_rim)
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.where(plain[rim] > 0, masked[rim] / plain[rim], centre[np.searchsorted(coned, rim)])
     factor[rim] = np.clip(ratio, 0.0, 1.0)
     return factor
+
+
+def _weighted_integrals(kernel, light_arrays: tuple, frames, couples, couple_pixel: np.ndarray,
+                        shading_normal: np.ndarray, piece_sets, wanted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per couple (Nc,) twice: ``kernel``'s rule integrals of weight x cosine and of the cosine over the
+    pieces of the couples ``wanted`` (Nc,) bool (``_masked_integrals`` or ``_spread_integrals``, their
+    per-light arrays ``light_arrays``); the piece sets as ``spot_factors`` takes them."""
+    weighted, plain = np.zeros(len(couple_pixel)), np.zeros(len(couple_pixel))
+    for uv, count, couple, sign in piece_sets:  # a couple of piece sets
+        rows = np.flatnonzero(wanted[couple])
+        if len(rows) == 0:
+            continue
+        c = couple[rows]
+        kernel(np.ascontiguousarray(uv[rows], np.float64), np.ascontiguousarray(count[rows], np.int64),
+               np.ones(len(rows)) if sign is None else np.ascontiguousarray(sign[rows], np.float64),
+               np.ascontiguousarray(c, np.int64), np.ascontiguousarray(couples.local[c], np.float64),
+               np.ascontiguousarray(shading_normal[couple_pixel[c]], np.float64),
+               np.ascontiguousarray(couples.light[c], np.int64), frames.tangent, frames.bitangent, frames.normal,
+               *light_arrays, SPOT_POINTS, SPOT_WEIGHTS, weighted, plain)
+    return weighted, plain
 
 
 @njit(cache=True, nogil=True)
@@ -484,21 +493,9 @@ def spread_factors(frames, couples, couple_pixel: np.ndarray, shading_normal: np
     spread_light = frames.spread[couples.light] < np.pi
     if not spread_light.any():
         return factor
-    weighted, plain = np.zeros(n_couples), np.zeros(n_couples)
-    normalisation = spread_normalisation(frames.spread)
     tan_half = np.tan(np.minimum(0.5 * frames.spread, 0.5 * np.pi - 1e-9))
-    for uv, count, couple, sign in piece_sets:  # a couple of piece sets
-        rows = np.flatnonzero(spread_light[couple])
-        if len(rows) == 0:
-            continue
-        c = couple[rows]
-        l = couples.light[c]
-        _spread_integrals(np.ascontiguousarray(uv[rows], np.float64), np.ascontiguousarray(count[rows], np.int64),
-                          np.ones(len(rows)) if sign is None else np.ascontiguousarray(sign[rows], np.float64),
-                          np.ascontiguousarray(c, np.int64), np.ascontiguousarray(couples.local[c], np.float64),
-                          np.ascontiguousarray(shading_normal[couple_pixel[c]], np.float64),
-                          np.ascontiguousarray(l, np.int64), frames.tangent, frames.bitangent, frames.normal,
-                          tan_half, normalisation, SPOT_POINTS, SPOT_WEIGHTS, weighted, plain)
+    weighted, plain = _weighted_integrals(_spread_integrals, (tan_half, spread_normalisation(frames.spread)), frames,
+                                          couples, couple_pixel, shading_normal, piece_sets, spread_light)
     rows = np.flatnonzero(spread_light)
     with np.errstate(divide="ignore", invalid="ignore"):
         factor[rows] = np.where(plain[rows] > 0, np.maximum(weighted[rows], 0.0) / plain[rows], 0.0)

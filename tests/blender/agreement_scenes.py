@@ -38,16 +38,22 @@ def box_and_two_lights(scene) -> None:
                    size_y=0.4, energy=30.0, exposure=0.5)
 
 
-def emitter_panel(scene) -> None:
-    """A floor, a slab and a tilted emissive quad (a two-sided mesh light, seen by the camera) beside a
-    square area light with Normalize off."""
+def _floor_slab_and_panel(scene):
+    """The emitter scenes' camera, floor, slab and tilted quad (its material left to the caller)."""
     add_camera(scene, location=(0.0, -5.5, 3.0), rotation=(math.radians(62), 0.0, 0.0), lens=35.0)
     bpy.ops.mesh.primitive_plane_add(size=8.0)
     assign(bpy.context.object, node_material("Floor", Color=(0.7, 0.7, 0.7)))
     bpy.ops.mesh.primitive_cube_add(size=1.0, location=(0.2, 0.4, 0.6), scale=(1.2, 0.1, 0.5))
     assign(bpy.context.object, node_material("Slab", Color=(0.3, 0.6, 0.3)))
     bpy.ops.mesh.primitive_plane_add(size=0.8, location=(-1.2, 1.2, 1.3), rotation=(math.radians(70), 0.0, 0.6))
-    assign(bpy.context.object, node_material("Glow", "ShaderNodeEmission", Color=(1.0, 0.6, 0.3), Strength=6.0))
+    return bpy.context.object
+
+
+def emitter_panel(scene) -> None:
+    """A floor, a slab and a tilted emissive quad (a two-sided mesh light, seen by the camera) beside a
+    square area light with Normalize off."""
+    panel = _floor_slab_and_panel(scene)
+    assign(panel, node_material("Glow", "ShaderNodeEmission", Color=(1.0, 0.6, 0.3), Strength=6.0))
     add_area_light(location=(1.3, -0.6, 2.2), rotation=(0.2, 0.35, 0.0), shape="SQUARE", size=0.5,
                    energy=6.0, normalize=False)
 
@@ -55,12 +61,7 @@ def emitter_panel(scene) -> None:
 def emitter_added(scene) -> None:
     """Issue 14: a floor, a slab and a tilted panel whose material is an Emission (Strength from a Value node)
     and a Diffuse BSDF joined by an Add Shader, as public scenes make emitters, beside a square area light."""
-    add_camera(scene, location=(0.0, -5.5, 3.0), rotation=(math.radians(62), 0.0, 0.0), lens=35.0)
-    bpy.ops.mesh.primitive_plane_add(size=8.0)
-    assign(bpy.context.object, node_material("Floor", Color=(0.7, 0.7, 0.7)))
-    bpy.ops.mesh.primitive_cube_add(size=1.0, location=(0.2, 0.4, 0.6), scale=(1.2, 0.1, 0.5))
-    assign(bpy.context.object, node_material("Slab", Color=(0.3, 0.6, 0.3)))
-    bpy.ops.mesh.primitive_plane_add(size=0.8, location=(-1.2, 1.2, 1.3), rotation=(math.radians(70), 0.0, 0.6))
+    panel = _floor_slab_and_panel(scene)
     material = node_material("Glow", "ShaderNodeEmission", Color=(1.0, 0.6, 0.3))
     tree = material.node_tree
     output = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial")
@@ -74,7 +75,7 @@ def emitter_added(scene) -> None:
     tree.links.new(emission.outputs[0], join.inputs[0])
     tree.links.new(diffuse.outputs[0], join.inputs[1])
     tree.links.new(join.outputs[0], output.inputs["Surface"])
-    assign(bpy.context.object, material)
+    assign(panel, material)
     add_area_light(location=(1.3, -0.6, 2.2), rotation=(0.2, 0.35, 0.0), shape="SQUARE", size=0.5, energy=6.0)
 
 

@@ -23,18 +23,11 @@ def add_camera(scene, location=(0.0, -6.0, 4.0), rotation=(math.radians(56), 0.0
 
 def add_area_light(location=(0.0, 0.0, 3.0), rotation=(0.0, 0.0, 0.0), scale=(1.0, 1.0, 1.0), name=None,
                    **data):
-    bpy.ops.object.light_add(type="AREA", location=location, rotation=rotation)
-    light = bpy.context.object
-    light.scale = scale
-    if name:
-        light.name = name
-    for key, value in data.items():
-        setattr(light.data, key, value)
-    return light
+    return add_light("AREA", location, rotation, scale, name, **data)
 
 
 def add_light(kind, location=(0.0, 0.0, 3.0), rotation=(0.0, 0.0, 0.0), scale=(1.0, 1.0, 1.0), name=None, **data):
-    """A point, spot or sun light (``kind`` "POINT", "SPOT", "SUN") with its data properties set."""
+    """A light of ``kind`` ("AREA", "POINT", "SPOT", "SUN") with its data properties set."""
     bpy.ops.object.light_add(type=kind, location=location, rotation=rotation)
     light = bpy.context.object
     light.scale = scale
