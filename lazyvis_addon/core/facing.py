@@ -405,6 +405,18 @@ def _weighted_integrals(kernel, light_arrays: tuple, frames, couples, couple_pix
     return weighted, plain
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _plane_point_cosine(u, v, h, l, p, tangent, bitangent, light_normal, normal, d):
+    """For a point of light l's plane at (u, v) from the receiver's foot (h its height): writes the direction
+    d (3,) from the receiver to it and returns |h| / |d|^3 (solid angle per area) times the receiver's cosine
+    (0 below its horizon)."""
+    for k3 in range(3):
+        d[k3] = u * tangent[l, k3] + v * bitangent[l, k3] - h * light_normal[l, k3]
+    length = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+    cosine = (d[0] * normal[p, 0] + d[1] * normal[p, 1] + d[2] * normal[p, 2]) / length
+    return abs(h) / (length * length * length) * cosine if cosine > 0.0 else 0.0
+
+
 @njit(cache=True, nogil=True)
 def _masked_integrals(uv, count, sign, couple, local, normal, light, tangent, bitangent, light_normal, spot_frame,
                       cos_half, smooth, points, weights, masked, plain):
@@ -424,13 +436,10 @@ def _masked_integrals(uv, count, sign, couple, local, normal, light, tangent, bi
             for q in range(len(weights)):
                 u = au + points[q, 0] * bu + points[q, 1] * cu - ux
                 v = av + points[q, 0] * bv + points[q, 1] * cv - vx
-                for k3 in range(3):
-                    d[k3] = u * tangent[l, k3] + v * bitangent[l, k3] - h * light_normal[l, k3]
-                length = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-                cosine = (d[0] * normal[p, 0] + d[1] * normal[p, 1] + d[2] * normal[p, 2]) / length
-                if cosine <= 0.0:
+                value = weights[q] * area2 * _plane_point_cosine(u, v, h, l, p, tangent, bitangent, light_normal,
+                                                                 normal, d)
+                if value == 0.0:
                     continue
-                value = weights[q] * area2 * abs(h) / (length * length * length) * cosine
                 # The ray leaves the lamp along -d: its direction in the spot's frame.
                 z, size = 0.0, 0.0
                 for i in range(3):
@@ -513,13 +522,7 @@ def _spread_triangle(au, av, bu, bv, cu, cv, ux, vx, h, l, p, normal, tangent, b
     for q in range(len(weights)):
         u = au + points[q, 0] * eu + points[q, 1] * fu - ux
         v = av + points[q, 0] * ev + points[q, 1] * fv - vx
-        for k3 in range(3):
-            d[k3] = u * tangent[l, k3] + v * bitangent[l, k3] - h * light_normal[l, k3]
-        length = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-        cosine = (d[0] * normal[p, 0] + d[1] * normal[p, 1] + d[2] * normal[p, 2]) / length
-        if cosine <= 0.0:
-            continue
-        value = weights[q] * area2 * abs(h) / (length * length * length) * cosine
+        value = weights[q] * area2 * _plane_point_cosine(u, v, h, l, p, tangent, bitangent, light_normal, normal, d)
         total_weighted += value * max(tan_half[l] - np.sqrt(u * u + v * v) / abs(h), 0.0) * normalisation[l]
         total_plain += value
     return total_weighted, total_plain
