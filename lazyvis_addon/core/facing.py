@@ -299,19 +299,6 @@ def too_close(frames, light: int, points: np.ndarray) -> np.ndarray:
     return distance_sq < limit ** 2
 
 
-def compile_facing():
-    """Compile ``_cap_polygons``, ``_masked_integrals`` and ``_spread_integrals`` (or load them from Numba's
-    cache) on one-receiver inputs; returns them."""
-    one, three, i = np.zeros(1), np.zeros((1, 3)), np.zeros(1, np.int64)
-    _cap_polygons(i, three, i, i, three, three, three, three, three, one, LAMP_AXES, 1.0, 1.0, 1.0,
-                  np.empty((1, FACING_VERTICES, 2)), np.empty(1, np.int64), np.empty(1, np.bool_))
-    _masked_integrals(np.zeros((1, 3, 2)), i, one, i, three, three, i, three, three, three, np.zeros((1, 3, 3)),
-                      one, one, SPOT_POINTS, SPOT_WEIGHTS, np.zeros(1), np.zeros(1))
-    _spread_integrals(np.zeros((1, 3, 2)), i, one, i, three, three, i, three, three, three, one, one, SPOT_POINTS,
-                      SPOT_WEIGHTS, np.zeros(1), np.zeros(1))
-    return _cap_polygons, _masked_integrals, _spread_integrals
-
-
 # ------------------------------------------------------------------------------------------------------
 # Spot cones over the cap
 # ------------------------------------------------------------------------------------------------------
@@ -366,8 +353,7 @@ def spot_factors(frames, couples, couple_pixel: np.ndarray, shading_normal: np.n
     directions = couples.directions(frames, couples.uv[coned], coned)            # (C, K, 3)
     width = directions.shape[1]
     corner = direction_mask(frames, np.repeat(light, width), directions.reshape(-1, 3)).reshape(-1, width)
-    centre = direction_mask(frames, light, frames.cap_centre[light] - (couples.receiver_in_light[coned]
-                                                                          + frames.origin[light]))
+    centre = spot_mask(frames, light, couples.receiver_in_light[coned])  # a lamp's frame origin is its centre
     full = (corner == 1.0).all(axis=1)
     dark = (corner == 0.0).all(axis=1) & (centre == 0.0)
     factor[coned[dark]] = 0.0
@@ -576,3 +562,16 @@ def direction_spread(frames, light: np.ndarray, direction: np.ndarray, side: np.
     tan_half = np.tan(np.minimum(0.5 * frames.spread[l], 0.5 * np.pi - 1e-9))
     out[rows] = np.where(cosine > 0, np.maximum(tan_half - tangent, 0.0) * spread_normalisation(frames.spread[l]), 0.0)
     return out
+
+
+def compile_facing():
+    """Compile ``_cap_polygons``, ``_masked_integrals`` and ``_spread_integrals`` (or load them from Numba's
+    cache) on one-receiver inputs; returns them."""
+    one, three, i = np.zeros(1), np.zeros((1, 3)), np.zeros(1, np.int64)
+    _cap_polygons(i, three, i, i, three, three, three, three, three, one, LAMP_AXES, 1.0, 1.0, 1.0,
+                  np.empty((1, FACING_VERTICES, 2)), np.empty(1, np.int64), np.empty(1, np.bool_))
+    _masked_integrals(np.zeros((1, 3, 2)), i, one, i, three, three, i, three, three, three, np.zeros((1, 3, 3)),
+                      one, one, SPOT_POINTS, SPOT_WEIGHTS, np.zeros(1), np.zeros(1))
+    _spread_integrals(np.zeros((1, 3, 2)), i, one, i, three, three, i, three, three, three, one, one, SPOT_POINTS,
+                      SPOT_WEIGHTS, np.zeros(1), np.zeros(1))
+    return _cap_polygons, _masked_integrals, _spread_integrals

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from .facing import cap_polygons, facing_frames, spread_lines
 from .scene import Lights
 
 # Relative tolerance for "on the plane" decisions (angles in radians, distances over lengths).
@@ -100,7 +101,6 @@ def light_frames(lights: Lights, facing=None, centre: np.ndarray | None = None, 
     frames = _polygon_frames(lights)
     if facing is None or len(facing) == 0:
         return frames
-    from .facing import facing_frames
     extra = facing_frames(facing, np.zeros(3) if centre is None else np.asarray(centre, np.float64), extent)
     width = max(frames.uv.shape[1], extra["uv"].shape[1])
     n_polygons = len(frames)
@@ -571,7 +571,6 @@ def receiver_light(position: np.ndarray, geometric_normal: np.ndarray, shading_n
     polygon_uv, polygon_count = frames.uv[light, :width], np.where(lit, frames.vertex_count[light], 0)
     facing_rows = np.flatnonzero(frames.kind[light] >= 0)
     if len(facing_rows):  # point, spot and sun lights: each receiver's own polygon (``facing``)
-        from .facing import cap_polygons
         cap_uv, cap_count, _ = cap_polygons(frames, light[facing_rows], position[facing_rows])
         polygon_uv = polygon_uv.copy()
         polygon_uv[facing_rows] = cap_uv[:, :width]
@@ -582,7 +581,6 @@ def receiver_light(position: np.ndarray, geometric_normal: np.ndarray, shading_n
                       np.einsum("nk,nk->n", rel, frames.bitangent[light]), height], axis=1)
     spread_rows = np.flatnonzero(frames.spread[light] < np.pi)
     if len(spread_rows):  # a Spread below 180 degrees: only the disk of the light that emits towards x
-        from .facing import spread_lines
         lines = spread_lines(local[spread_rows], frames.spread[light[spread_rows]])
         narrowed, narrowed_count = clip_by_lines(uv[spread_rows], count[spread_rows], lines)
         uv = pad_to(uv, narrowed.shape[1])

@@ -19,6 +19,7 @@ from .antialias import (PILOT_SAMPLES, allocate_samples, centre_suffices, covers
 from .blockers import BlockerPolygons
 from .blocker_map import BlockerMap, build_blocker_map, flood_fill, reference_blocker_map
 from .camera import camera_rays, planar_depth, window_pixels
+from .facing import too_close
 from .geometry import light_frames
 from .parallel import map_batches, thread_count
 from .bsdf import SurfaceBsdf
@@ -605,7 +606,6 @@ def _compose(scene: Scene, frames, surface: SurfacePoints, radiance: np.ndarray,
 def _warn_clamped_caps(surface: SurfacePoints, frames, progress: Progress) -> None:
     """One warning naming the point and spot lights that some visible point lies too close to (``facing``'s
     MAX_HALF_ANGLE: it sees less of the lamp than Cycles there)."""
-    from .facing import too_close
     points = surface.position[surface.hit]
     close = sorted({int(frames.source[light]) for light in np.flatnonzero(frames.kind >= 0)  # a handful
                     if too_close(frames, light, points).any()})
