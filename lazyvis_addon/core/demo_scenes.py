@@ -40,6 +40,33 @@ def quad_triangles(corners) -> np.ndarray:
     return corners[np.array([(0, 1, 2), (0, 2, 3)])]
 
 
+def icosphere_triangles(centre, radius: float, level: int = 3) -> np.ndarray:
+    """An icosphere's faces (20 * 4^level, 3, 3) float64, wound outward: a closed convex mesh."""
+    t = (1.0 + 5.0 ** 0.5) / 2.0
+    points = [np.array(p, np.float64) for p in ((-1, t, 0), (1, t, 0), (-1, -t, 0), (1, -t, 0), (0, -1, t),
+                                                (0, 1, t), (0, -1, -t), (0, 1, -t), (t, 0, -1), (t, 0, 1),
+                                                (-t, 0, -1), (-t, 0, 1))]
+    points = [p / np.linalg.norm(p) for p in points]
+    faces = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4), (11, 10, 2),
+             (10, 7, 6), (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9), (4, 9, 5), (2, 4, 11),
+             (6, 2, 10), (8, 6, 7), (9, 8, 1)]
+    for _ in range(level):  # subdivision levels: a handful
+        middle = {}
+
+        def midpoint(a, b):
+            key = (min(a, b), max(a, b))
+            if key not in middle:
+                m = points[a] + points[b]
+                points.append(m / np.linalg.norm(m))
+                middle[key] = len(points) - 1
+            return middle[key]
+
+        faces = [f for a, b, c in faces
+                 for ab, bc, ca in [(midpoint(a, b), midpoint(b, c), midpoint(c, a))]
+                 for f in ((a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca))]
+    return np.asarray(centre, np.float64) + radius * np.array(points)[np.array(faces)]
+
+
 def rectangle_light(centre, size_x: float, size_y: float, normal=(0.0, 0.0, -1.0)) -> np.ndarray:
     """Vertices (4, 3) of a rectangle light facing ``normal``, counter-clockwise about it."""
     normal = np.asarray(normal, dtype=np.float64)

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from .emitters import FACING_HULL, hull_frames, hull_polygons, hull_tables
 from .facing import cap_polygons, facing_frames, spread_lines
 from .scene import Lights
 
@@ -50,6 +51,9 @@ class LightFrames:
     scene_light : (L,) int64     the light of passes and statistics (polygon lights, then facing lights).
     cast_shadow : (L,) bool      False: nothing blocks the light (Cast Shadow off).
     spread : (L,) float64        Cycles' area light Spread, radians (pi: Lambertian; ``Lights.spread``).
+
+    Closed convex mesh emitters (``Scene.hulls``) follow as six virtual lights each, kind FACING_HULL, whose
+    polygon is built per receiver too (``emitters.hull_polygons``; ``hulls`` their tables, source the hull).
     """
 
     origin: np.ndarray
@@ -73,6 +77,7 @@ class LightFrames:
     scene_light: np.ndarray | None = None
     cast_shadow: np.ndarray | None = None
     spread: np.ndarray | None = None
+    hulls: object = None
 
     def __post_init__(self) -> None:
         count = len(self.vertex_count)
@@ -94,16 +99,27 @@ class LightFrames:
         return bool((self.kind >= 0).any())
 
 
-def light_frames(lights: Lights, facing=None, centre: np.ndarray | None = None, extent: float = 1.0
-                 ) -> LightFrames:
+def light_frames(lights: Lights, facing=None, centre: np.ndarray | None = None, extent: float = 1.0,
+                 hulls=None) -> LightFrames:
     """Frames of validated lights (see ``Scene.validated``): the polygon lights, then the virtual lights of
-    ``facing`` (FacingLights; ``centre`` (3,) and ``extent`` the scene's bounding-box centre and diagonal)."""
+    ``facing`` (FacingLights; ``centre`` (3,) and ``extent`` the scene's bounding-box centre and diagonal),
+    then those of ``hulls`` (EmitterHulls)."""
     frames = _polygon_frames(lights)
-    if facing is None or len(facing) == 0:
-        return frames
-    extra = facing_frames(facing, np.zeros(3) if centre is None else np.asarray(centre, np.float64), extent)
+    if facing is not None and len(facing):
+        extra = facing_frames(facing, np.zeros(3) if centre is None else np.asarray(centre, np.float64), extent)
+        extra["vertex_count"] = np.full(len(extra["kind"]), extra["uv"].shape[1])
+        frames = _joined(frames, extra, len(lights))
+    if hulls is not None and len(hulls):
+        tables = hull_tables(hulls)
+        frames = _joined(frames, hull_frames(tables, hulls.radiance), len(lights) + (len(facing) if facing else 0))
+        frames.hulls = tables
+    return frames
+
+
+def _joined(frames: LightFrames, extra: dict, first_scene_light: int) -> LightFrames:
+    """``frames`` followed by virtual lights ``extra`` (``facing_frames``' arrays), whose scene lights are
+    ``first_scene_light`` + their source."""
     width = max(frames.uv.shape[1], extra["uv"].shape[1])
-    n_polygons = len(frames)
 
     def padded(array, k):
         return np.concatenate([array, np.repeat(array[:, -1:], k - array.shape[1], axis=1)], axis=1) \
@@ -115,10 +131,10 @@ def light_frames(lights: Lights, facing=None, centre: np.ndarray | None = None, 
         joined[name] = np.concatenate([getattr(frames, name), extra[name]])
     joined["uv"] = np.concatenate([padded(frames.uv, width), padded(extra["uv"], width)])
     joined["vertices"] = np.concatenate([padded(frames.vertices, width), padded(extra["vertices"], width)])
-    joined["vertex_count"] = np.concatenate([frames.vertex_count, np.full(len(extra["kind"]), extra["uv"].shape[1])])
+    joined["vertex_count"] = np.concatenate([frames.vertex_count, extra["vertex_count"]])
     joined["source"] = np.concatenate([frames.source, extra["source"]])
-    joined["scene_light"] = np.concatenate([frames.scene_light, n_polygons + extra["source"]])
-    return LightFrames(**joined)
+    joined["scene_light"] = np.concatenate([frames.scene_light, first_scene_light + extra["source"]])
+    return LightFrames(**joined, hulls=frames.hulls)
 
 
 def _polygon_frames(lights: Lights) -> LightFrames:
@@ -569,13 +585,20 @@ def receiver_light(position: np.ndarray, geometric_normal: np.ndarray, shading_n
     width = max(int(frames.vertex_count[light].max()), 3) if len(light) else 3
     horizons = plane_lines(np.stack([geometric_normal, shading_normal], axis=1), rel, light, frames)  # (N, 2, 3)
     polygon_uv, polygon_count = frames.uv[light, :width], np.where(lit, frames.vertex_count[light], 0)
-    facing_rows = np.flatnonzero(frames.kind[light] >= 0)
+    kind = frames.kind[light]
+    facing_rows = np.flatnonzero((kind >= 0) & (kind != FACING_HULL))
+    hull_rows = np.flatnonzero(kind == FACING_HULL)
+    if len(facing_rows) or len(hull_rows):
+        polygon_uv = polygon_uv.copy()
+        polygon_count = polygon_count.copy()
     if len(facing_rows):  # point, spot and sun lights: each receiver's own polygon (``facing``)
         cap_uv, cap_count, _ = cap_polygons(frames, light[facing_rows], position[facing_rows])
-        polygon_uv = polygon_uv.copy()
         polygon_uv[facing_rows] = cap_uv[:, :width]
-        polygon_count = polygon_count.copy()
         polygon_count[facing_rows] = np.where(lit[facing_rows], cap_count, 0)
+    if len(hull_rows):  # convex mesh emitters: each receiver's silhouette (``emitters``)
+        hull_uv, hull_count, _, _ = hull_polygons(frames, light[hull_rows], position[hull_rows])
+        polygon_uv[hull_rows] = hull_uv[:, :width]
+        polygon_count[hull_rows] = np.where(lit[hull_rows], hull_count, 0)
     uv, count = clip_by_lines(polygon_uv, polygon_count, horizons)
     local = np.stack([np.einsum("nk,nk->n", rel, frames.tangent[light]),
                       np.einsum("nk,nk->n", rel, frames.bitangent[light]), height], axis=1)

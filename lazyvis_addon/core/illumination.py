@@ -19,6 +19,7 @@ from . import rng
 from .blocker_map import BlockerMap, first_blocker
 from .blockers import BlockerPolygons, silhouette_planes
 from .bsdf import SurfaceBsdf
+from .emitters import FACING_HULL, taken_hull_planes
 from .facing import direction_mask, direction_spread, spot_factors, spread_factors, taken_planes
 from .geometry import (PLANE_EPS, LightFrames, ReceiverLight, blocker_in_front_of_light, clip_convex, cone_planes,
                        pad_to, plane_lines, polygon_area_2d, projected_solid_angle, projected_solid_angle_uv, receiver_light,
@@ -72,6 +73,12 @@ def couples_for(surface: SurfacePoints, frames: LightFrames, exclude: np.ndarray
     mask = np.broadcast_to(surface.hit[:, None], (len(surface), len(frames))).copy()
     if exclude is not None:
         mask &= ~exclude
+    if frames.hulls is not None:  # a hull's receiver takes one of its six planes, decided once per receiver
+        rows = np.flatnonzero(frames.kind == FACING_HULL)
+        hit = np.flatnonzero(surface.hit)
+        taken = np.zeros((len(surface), len(rows)), bool)
+        taken[hit] = taken_hull_planes(frames, surface.position[hit])
+        mask[:, rows] &= taken
     pixel, light = np.nonzero(mask)
     if frames.any_facing:  # a lamp's receiver takes one of its three planes
         keep = taken_planes(frames, light, surface.position[pixel])

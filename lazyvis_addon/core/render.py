@@ -19,6 +19,7 @@ from .antialias import (PILOT_SAMPLES, allocate_samples, centre_suffices, covers
 from .blockers import BlockerPolygons
 from .blocker_map import BlockerMap, build_blocker_map, flood_fill, reference_blocker_map
 from .camera import camera_rays, planar_depth, window_pixels
+from .emitters import FACING_HULL, near_receivers, nearby_geometry
 from .facing import too_close
 from .geometry import light_frames
 from .parallel import map_batches, thread_count
@@ -90,7 +91,9 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
     tracer = RayTracer(scene.triangles)
     extent = scene_extent(scene)
 
-    frames = light_frames(scene.lights, scene.facing, scene_centre(scene), extent)
+    frames = light_frames(scene.lights, scene.facing, scene_centre(scene), extent, scene.hulls)
+    if frames.hulls is not None:
+        _warn_nearby_geometry(scene, frames, progress)
     pixel_global = _global_pixels(camera)
     polygons = None  # the silhouettes need no blocker polygons (nor their convex parts' setup)
     if not settings.uses_silhouettes:
@@ -131,6 +134,8 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
 
     if frames.any_facing:
         _warn_clamped_caps(surface, frames, progress)
+    if frames.hulls is not None:
+        _warn_near_hulls(surface, frames, progress)
     if not frames.cast_shadow.all() and not settings.uses_silhouettes:
         progress.warn("lights with Cast Shadow off cast shadows with the paper's blocker maps and the Monte Carlo "
                       "integrators; the default silhouettes honour it")
@@ -607,8 +612,28 @@ def _warn_clamped_caps(surface: SurfacePoints, frames, progress: Progress) -> No
     """One warning naming the point and spot lights that some visible point lies too close to (``facing``'s
     MAX_HALF_ANGLE: it sees less of the lamp than Cycles there)."""
     points = surface.position[surface.hit]
-    close = sorted({int(frames.source[light]) for light in np.flatnonzero(frames.kind >= 0)  # a handful
+    lamps = np.flatnonzero((frames.kind >= 0) & (frames.kind != FACING_HULL))
+    close = sorted({int(frames.source[light]) for light in lamps  # a handful
                     if too_close(frames, light, points).any()})
     if close:
         progress.warn("surfaces closer to a point or spot light than 1.7 times its radius get less of its light "
                       f"than in Cycles (point/spot/sun light {', '.join(str(i) for i in close)})")
+
+
+def _warn_near_hulls(surface: SurfacePoints, frames, progress: Progress) -> None:
+    """One warning naming the convex mesh emitters that some visible point gets none of the light of
+    (``emitters.near_receivers``: within about 1.7 radii of the emitter's centre, or an overflowing
+    silhouette)."""
+    missed = near_receivers(frames, surface.position[surface.hit])
+    if missed:
+        progress.warn("surfaces within about 1.7 radii of a convex mesh emitter's centre get none of its light "
+                      f"({', '.join(f'emitter {h}: {n} pixel(s)' for h, n in sorted(missed.items()))})")
+
+
+def _warn_nearby_geometry(scene: Scene, frames, progress: Progress) -> None:
+    """One warning naming the convex mesh emitters that other geometry comes close to: it may stand between
+    the emitter and the plane its light is cut in, where it shadows nothing (``emitters.nearby_geometry``)."""
+    close = np.flatnonzero(nearby_geometry(frames.hulls, scene.triangles))
+    if len(close):
+        progress.warn("geometry within about 4 radii of a convex mesh emitter may not shadow the emitter's light "
+                      f"where it is closer to the emitter than its tangent planes (emitter {', '.join(map(str, close))})")

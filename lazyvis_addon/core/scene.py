@@ -179,6 +179,21 @@ class Lights:
     def empty(cls) -> "Lights":
         return cls(np.zeros((0, 3, 3)), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0, bool))
 
+    @classmethod
+    def concat(cls, parts: list["Lights"]) -> "Lights":
+        """The lights of ``parts`` in order, padded to the widest polygon."""
+        if not parts:
+            return cls.empty()
+        width = max(p.vertices.shape[1] for p in parts)
+
+        def padded(vertices):
+            return np.concatenate([vertices, np.repeat(vertices[:, -1:], width - vertices.shape[1], axis=1)], axis=1) \
+                if len(vertices) else np.zeros((0, width, 3))
+
+        return cls(np.concatenate([padded(p.vertices) for p in parts]),
+                   *(np.concatenate([getattr(p, name) for p in parts])
+                     for name in ("vertex_count", "radiance", "two_sided", "cast_shadow", "spread")))
+
     def __len__(self) -> int:
         return len(self.vertex_count)
 
@@ -287,6 +302,50 @@ class FacingLights:
         return FacingLights(self.kind[keep], self.centre[keep], self.radius[keep], self.intensity[keep],
                             self.spot_frame[keep], self.spot_cos_half[keep], self.spot_smooth[keep],
                             self.cast_shadow[keep])
+
+
+@dataclass
+class EmitterHulls:
+    """Closed convex mesh emitters of uniform radiance, each one light (``emitters``).
+
+    From any point outside it, such an emitter is seen as its silhouette: the directions towards it are
+    those of the polygon where the cone through the silhouette meets a plane, and every one carries its
+    radiance. ``emitters.group_mesh_emitters`` finds them among a mesh's emitting triangles; pass 2 builds
+    each receiver's polygon (``emitters.hull_polygons``), so a sphere of thousands of faces costs one light.
+
+    Attributes
+    ----------
+    triangles : (K, 3, 3) float64   the emitters' faces (world space, m), wound outward.
+    hull : (K,) int64               the emitter (row) of each face, ascending.
+    radiance : (H, 3) float64       each emitter's radiance, W m^-2 sr^-1 per colour channel.
+    """
+
+    triangles: np.ndarray
+    hull: np.ndarray
+    radiance: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.triangles = np.asarray(self.triangles, dtype=np.float64).reshape(-1, 3, 3)
+        self.hull = np.asarray(self.hull, dtype=np.int64).reshape(-1)
+        self.radiance = np.asarray(self.radiance, dtype=np.float64).reshape(-1, 3)
+
+    @classmethod
+    def empty(cls) -> "EmitterHulls":
+        return cls(np.zeros((0, 3, 3)), np.zeros(0, np.int64), np.zeros((0, 3)))
+
+    def __len__(self) -> int:
+        return len(self.radiance)
+
+    def faces_of(self, row: int) -> np.ndarray:
+        """The faces (k, 3, 3) of emitter ``row``."""
+        return self.triangles[self.hull == row]
+
+    def subset(self, keep: np.ndarray) -> "EmitterHulls":
+        """The emitters ``keep`` (H,) bool, renumbered in order."""
+        keep = np.asarray(keep, bool)
+        renumber = np.cumsum(keep) - 1
+        faces = keep[self.hull]
+        return EmitterHulls(self.triangles[faces], renumber[self.hull[faces]], self.radiance[keep])
 
 
 @dataclass
@@ -403,6 +462,9 @@ class Scene:
         the vertex normals describe, lifted off the flat triangle (``terminator.terminator_lift``). None: 0.
     facing : FacingLights
         Point, spot and sun lights (after ``lights`` in the light order of passes and statistics).
+    hulls : EmitterHulls
+        Closed convex mesh emitters, one light each (after ``facing``); their faces are also triangles of
+        the scene (they block other lights), not rows of ``lights``.
     """
 
     triangles: np.ndarray
@@ -416,6 +478,7 @@ class Scene:
     textures: list = field(default_factory=list)
     terminator_offset: np.ndarray | None = None
     facing: FacingLights = field(default_factory=FacingLights.empty)
+    hulls: EmitterHulls = field(default_factory=EmitterHulls.empty)
 
     def __post_init__(self) -> None:
         self.triangles = _as_float_array("triangles", self.triangles, (3, 3)) if len(np.asarray(self.triangles)) \
@@ -508,13 +571,15 @@ class Scene:
         parameters["metallic"] = np.clip(parameters["metallic"], 0.0, 1.0)
         parameters["roughness"] = np.clip(parameters["roughness"], 0.0, 1.0)
         facing = _validated_facing(self.facing, progress)
+        hulls = _validated_hulls(self.hulls, progress)
         return Scene(triangles, material_index, Materials(**parameters), lights, self.camera,
-                     self.background, shading_normals, corner_uvs, list(self.textures), terminator_offset, facing)
+                     self.background, shading_normals, corner_uvs, list(self.textures), terminator_offset, facing,
+                     hulls)
 
     @property
     def light_count(self) -> int:
-        """Polygon lights and facing lights: the lights of passes and statistics."""
-        return len(self.lights) + len(self.facing)
+        """Polygon lights, facing lights and emitter hulls: the lights of passes and statistics."""
+        return len(self.lights) + len(self.facing) + len(self.hulls)
 
     # -- files ---------------------------------------------------------------------------------------
     def save_npz(self, path) -> None:
@@ -540,6 +605,9 @@ class Scene:
         if len(self.facing):
             for name in FACING_ARRAYS:
                 arrays["facing_" + name] = getattr(self.facing, name)
+        if len(self.hulls):
+            arrays.update(hull_triangles=self.hulls.triangles, hull_index=self.hulls.hull,
+                          hull_radiance=self.hulls.radiance)
         for index, texture in enumerate(self.textures):
             arrays[f"texture_{index}_texels"] = texture.texels
             arrays[f"texture_{index}_options"] = np.array([str(int(texture.srgb)), texture.interpolation,
@@ -587,7 +655,10 @@ class Scene:
                        np.array(data["terminator_offset"]) if "terminator_offset" in data else None,
                        FacingLights(*(np.array(data["facing_" + name]) if "facing_" + name in data else None
                                       for name in FACING_ARRAYS))
-                       if "facing_kind" in data else FacingLights.empty())
+                       if "facing_kind" in data else FacingLights.empty(),
+                       EmitterHulls(np.array(data["hull_triangles"]), np.array(data["hull_index"]),
+                                    np.array(data["hull_radiance"]))
+                       if "hull_radiance" in data else EmitterHulls.empty())
 
 
 FACING_ARRAYS = ("kind", "centre", "radius", "intensity", "spot_frame", "spot_cos_half", "spot_smooth",
@@ -611,6 +682,24 @@ def _validated_facing(facing: FacingLights, progress: Progress) -> FacingLights:
         progress.warn(f"dropped {int((dark | directionless).sum())} point/spot/sun light(s) of zero power or "
                       "without a direction")
     return facing.subset(~(dark | directionless))
+
+
+def _validated_hulls(hulls: EmitterHulls, progress: Progress) -> EmitterHulls:
+    """Check convex emitters (finite faces and radiance, radiance >= 0, face rows in range); drop dark ones."""
+    if len(hulls) == 0:
+        return hulls
+    _require_finite("emitter hull faces", hulls.triangles)
+    _require_finite("emitter hull radiance", hulls.radiance)
+    if (hulls.radiance < 0).any():
+        raise ValueError("emitter hull radiance must not be negative")
+    if len(hulls.hull) != len(hulls.triangles) or (hulls.hull < 0).any() or (hulls.hull >= len(hulls)).any():
+        raise ValueError("emitter hull faces must name an emitter in 0..H-1")
+    if (np.bincount(hulls.hull, minlength=len(hulls)) < 4).any():
+        raise ValueError("an emitter hull needs at least 4 faces (a closed convex mesh)")
+    dark = hulls.radiance.max(axis=1) <= 0
+    if dark.any():
+        progress.warn(f"dropped {int(dark.sum())} mesh emitter(s) of zero radiance")
+    return hulls.subset(~dark) if dark.any() else hulls
 
 
 def _validated_lights(lights: Lights, progress: Progress) -> Lights:

@@ -42,6 +42,7 @@ from numba import njit
 from . import arcs as arcs_module, arrangement as arrangement_module, detection as detection_module
 from .arcs import Arcs, _cone_planes, cone_of_light
 from .arrangement import compile_arrangement, jumps_between, visible_fans
+from .emitters import compile_emitters
 from .facing import compile_facing
 from .detection import (HULL_BASE, HULL_BOX_HIGH, HULL_BOX_LOW, HULL_EPS, HULL_HEIGHT, HULL_HIGH, HULL_LOW,
                         HULL_SIDE_NORMAL, HULL_SIDE_OFFSET, HULL_SIDE_VALID, HULL_TOWARD, HULL_WIDTH, compile_detection,
@@ -563,7 +564,7 @@ def compile_kernels() -> bool:
     kernels = (detection_module._detect, *compile_regions(), arrangement_module._fans,
                arrangement_module._jumps, _cone_planes, _bounding_cones, _reference_points, _hull_rows,
                _silhouette_lights, _fan_triangles_kernel, *compile_geometry(), *compile_terminator(),
-               *compile_facing())
+               *compile_facing(), *compile_emitters())
     return any(kernel.stats.cache_misses for kernel in kernels)
 
 
@@ -576,14 +577,18 @@ MIN_PIXEL_BATCH = 256
 
 def pixel_batch_for(memory_budget_mb: float, threads: int, frames: LightFrames) -> int:
     """Pixels per pass-2 batch: a quarter of the memory budget shared by the threads' batches, each pixel
-    costing COUPLE_VERTEX_BYTES per light and vertex of its clipped light (clipping at the horizons adds
-    at most a few vertices). suzanne_dense at 512 px with batches of 16384 pixels peaked at 2.7 GB, with
+    costing COUPLE_VERTEX_BYTES per light it takes and vertex of its clipped light (clipping at the horizons
+    adds at most a few vertices). suzanne_dense at 512 px with batches of 16384 pixels peaked at 2.7 GB, with
     4096 at 0.95 GB, as fast.
 
     Raises MemoryError when the budget cannot hold even MIN_PIXEL_BATCH pixels per thread.
     """
     vertices = int(frames.vertex_count.max()) + 4 if len(frames) else 4
-    per_pixel = max(len(frames), 1) * vertices * COUPLE_VERTEX_BYTES
+    # A receiver takes one plane of each lamp (three) and each convex emitter (six).
+    virtual = frames.kind >= 0
+    lights_taken = int((~virtual).sum()) + len(np.unique(frames.kind[virtual] * (len(frames) + 1)
+                                                          + frames.source[virtual]))
+    per_pixel = max(lights_taken, 1) * vertices * COUPLE_VERTEX_BYTES
     pixels = int(memory_budget_mb * 2 ** 20 / 4 / max(threads, 1) / per_pixel)
     if pixels < MIN_PIXEL_BATCH:
         needed = MIN_PIXEL_BATCH * per_pixel * max(threads, 1) * 4 / 2 ** 20

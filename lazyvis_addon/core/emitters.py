@@ -1,0 +1,626 @@
+"""Mesh emitters as few lights: planar convex emitters merged into one polygon, closed convex ones as hulls.
+
+Blender meshes that emit (an Emission shader on a subdivided sphere, a neon tube, a panel) reach the core
+as emitting triangles, each a two-sided polygon light. Every light costs pass 2 a couple per receiver, so a
+sphere of 1,900 faces cost 1,900 lights. Two groupings keep the radiometry and cost one light each:
+
+- a **planar** emitter whose triangles tile a convex polygon (a quad, a subdivided panel, a disk) is that
+  polygon, two-sided, of the same radiance;
+- a **closed convex** emitter (a UV or ico sphere, a cube, a capped cylinder) is, from any point outside it,
+  seen as its silhouette, every direction inside carrying its radiance. Its light is the polygon where the
+  cone through the silhouette meets a plane, built per receiver as point lamps' polygons are (``facing``).
+
+The planes of a hull (``hull_frames``): pass 2 clips a light in its own fixed plane, so each hull gets six
+virtual lights, the planes tangent to it (supporting planes) with normals +-LAMP_AXES (a generic rotation,
+so that no face a user models lies in one). A receiver takes the plane it stands highest above, where the
+silhouette's projection (the 2-D convex hull of the projected rim: the vertices of the edges between a
+face turned towards it and one turned away) lies within
+HOLDER_REACH radii of the hull's centre; each frame's own polygon (``LightFrames.vertices``), the square of
+that reach, holds every receiver's. The whole emitter lies behind a supporting plane, so none of its own
+faces blocks its light.
+
+A closed emitter counts as convex within NEAR_CONVEX of its radius: a subdivided sphere's non-planar quads
+fold by a fraction of a percent, and its outline is then its vertices' hull's (measured on a public scene's
+1,920-face sphere: 1.7e-4 of the light of one light per triangle at most).
+
+Limits, stated where they apply: geometry between a hull and the plane a receiver takes (within about a
+radius of the emitter's surface) blocks none of its light, and where it pierces that plane inside the light
+pass 2's silhouettes shade it wrong (issue 13's xfail test; ``nearby_geometry`` warns of both); a receiver
+inside the box the six planes bound (within about 1.7 radii of the centre) that takes no plane gets none of
+the hull's light (``near_receivers`` counts them for a warning). Non-convex emitters (a torus, a lamp shade
+open at both ends) stay one light per triangle.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from .facing import LAMP_AXES
+from .scene import EmitterHulls, Lights
+
+# Kind of a hull's virtual lights in ``LightFrames.kind`` (after the facing kinds 0..2).
+FACING_HULL = 3
+# A receiver's polygon must lie within this many bounding radii of the hull's centre's foot on the plane:
+# the frame's own square of that half-width holds every receiver's (the conservative tests read it).
+HOLDER_REACH = 3.0
+# Relative tolerance of the planar test (times the emitter's size).
+CONVEX_EPS = 1e-7
+# A closed emitter is grouped as convex when no vertex lies further in front of a face than this fraction of
+# its radius: exactly convex meshes (float32 coordinates aside), and subdivided ones whose non-planar quads
+# fold by a fraction of a percent (the outline then is the vertices' hull's, within that fraction).
+NEAR_CONVEX = 1e-2
+# Far views sampled for a hull's widest silhouette (its polygons' vertex budget, ``hull_tables``).
+WIDTH_VIEWS = 96
+
+
+# ------------------------------------------------------------------------------------------------------
+# Grouping an exporter's emitting triangles
+# ------------------------------------------------------------------------------------------------------
+
+def group_mesh_emitters(lights: Lights, part: np.ndarray) -> tuple[Lights, EmitterHulls, np.ndarray, np.ndarray]:
+    """Merge each emitter's triangles into one light where that keeps the radiometry.
+
+    Parameters
+    ----------
+    lights : Lights       polygon lights, mesh emitters' triangles among them (vertex_count 3).
+    part : (L,) int64     for each light, the emitter it is a triangle of (one object instance and material:
+                          one radiance), -1 for lights that are not to be grouped.
+
+    Returns
+    -------
+    lights : Lights              the lights not grouped, then one polygon per planar convex emitter.
+    hulls : EmitterHulls         one row per closed convex emitter (its faces wound outward).
+    light_source, hull_source    (L',), (H,) int64: the input light each output light or hull stands for
+                                 (its first triangle; for names).
+    """
+    part = np.asarray(part, np.int64).reshape(-1)
+    if len(part) != len(lights):
+        raise ValueError(f"part has {len(part)} entries for {len(lights)} lights")
+    grouped = (part >= 0) & (np.asarray(lights.vertex_count) == 3)
+    keep_rows = [np.flatnonzero(~grouped)]
+    polygons, polygon_rows, hull_faces, hull_rows = [], [], [], []
+    order = np.flatnonzero(grouped)
+    order = order[np.argsort(part[order], kind="stable")]
+    bounds = np.flatnonzero(np.diff(part[order])) + 1
+    for rows in np.split(order, bounds) if len(order) else []:  # emitters: one per emitting object and material
+        triangles = lights.vertices[rows, :3]
+        if len(rows) >= 2:
+            polygon = planar_convex_union(triangles)
+            if polygon is not None:
+                polygons.append(polygon)
+                polygon_rows.append(rows[0])
+                continue
+        if len(rows) >= 4:
+            outward = closed_convex_faces(triangles)
+            if outward is not None:
+                hull_faces.append(outward)
+                hull_rows.append(rows[0])
+                continue
+        keep_rows.append(rows)
+    kept = np.sort(np.concatenate(keep_rows))
+    base = lights.subset(kept)
+    if polygons:
+        merged = Lights.from_polygons(polygons, lights.radiance[polygon_rows], np.ones(len(polygons), bool))
+        merged.cast_shadow = np.asarray(lights.cast_shadow, bool)[polygon_rows]
+        base = Lights.concat([base, merged])
+    hulls = EmitterHulls(np.concatenate(hull_faces) if hull_faces else np.zeros((0, 3, 3)),
+                         np.repeat(np.arange(len(hull_faces)), [len(f) for f in hull_faces]),
+                         lights.radiance[hull_rows] if hull_rows else np.zeros((0, 3)))
+    return base, hulls, np.concatenate([kept, np.array(polygon_rows, np.int64)]), np.array(hull_rows, np.int64)
+
+
+def planar_convex_union(triangles: np.ndarray) -> np.ndarray | None:
+    """The convex polygon (V, 3) that triangles (K, 3, 3) tile, or None: they lie in one plane and their
+    areas sum to that of their vertices' convex hull (they cover it; a mesh's faces do not overlap).
+    Collinear hull vertices are dropped; the winding is that of the first triangle."""
+    normal = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+    doubled = np.linalg.norm(normal, axis=1)
+    if not (doubled > 0).all():
+        return None
+    unit = normal[0] / doubled[0]
+    points = triangles.reshape(-1, 3)
+    size = float(np.ptp(points, axis=0).max())
+    if (np.abs((points - points[0]) @ unit) > CONVEX_EPS * size).any():
+        return None
+    helper = np.eye(3)[np.argmin(np.abs(unit))]
+    tangent = np.cross(unit, helper)
+    tangent /= np.linalg.norm(tangent)
+    bitangent = np.cross(unit, tangent)
+    uv = np.stack([(points - points[0]) @ tangent, (points - points[0]) @ bitangent], axis=1)
+    hull = convex_hull_2d(uv, CONVEX_EPS * size * size)
+    if len(hull) < 3:
+        return None
+    ring = uv[hull]
+    hull_area = 0.5 * abs(np.sum(ring[:, 0] * np.roll(ring[:, 1], -1) - np.roll(ring[:, 0], -1) * ring[:, 1]))
+    if abs(0.5 * doubled.sum() - hull_area) > 1e-6 * hull_area:
+        return None
+    return points[hull]  # counter-clockwise about ``unit``: the first triangle's winding
+
+
+def convex_hull_2d(points: np.ndarray, tolerance: float = 0.0) -> np.ndarray:
+    """Indices of the convex hull of points (N, 2), counter-clockwise, collinear points left out
+    (Andrew's monotone chain; ``tolerance`` on twice the turn's area)."""
+    order = np.lexsort((points[:, 1], points[:, 0]))
+    unique = order[np.concatenate([[True], (np.diff(points[order], axis=0) != 0).any(axis=1)])]
+
+    def chain(indices):
+        out = []
+        for i in indices:  # hull vertices of one emitter: a polygon's worth, once per emitter
+            while len(out) >= 2:
+                a, b = points[out[-2]], points[out[-1]]
+                if (b[0] - a[0]) * (points[i][1] - a[1]) - (b[1] - a[1]) * (points[i][0] - a[0]) > tolerance:
+                    break
+                out.pop()
+            out.append(i)
+        return out
+
+    if len(unique) < 3:
+        return unique
+    lower, upper = chain(unique), chain(unique[::-1])
+    return np.array(lower[:-1] + upper[:-1], np.int64)
+
+
+def closed_convex_faces(triangles: np.ndarray, tolerance: float = None) -> np.ndarray | None:
+    """Triangles (K, 3, 3) wound outward when they bound a convex solid, else None.
+
+    Closed: every edge is shared by exactly two faces, in opposite directions (vertices matched exactly:
+    a mesh's corners come from one vertex array). Convex: no vertex lies further in front of a face's plane
+    than ``tolerance`` (default NEAR_CONVEX) times the largest distance of a vertex from their mean: the
+    folds of a subdivided surface's non-planar quads pass (their outline is the vertices' hull's to that
+    fraction). Faces all wound inward are turned round.
+    """
+    tolerance = NEAR_CONVEX if tolerance is None else tolerance
+    points = triangles.reshape(-1, 3)
+    unique_points, vertex = np.unique(points, axis=0, return_inverse=True)
+    vertex = vertex.reshape(-1, 3)
+    directed = np.stack([vertex, np.roll(vertex, -1, axis=1)], axis=-1).reshape(-1, 2)
+    n_vertices = len(unique_points)
+    key = directed[:, 0] * n_vertices + directed[:, 1]
+    reverse = directed[:, 1] * n_vertices + directed[:, 0]
+    if len(np.unique(key)) != len(key):
+        return None  # an edge used twice in one direction: not one consistently wound surface
+    if not np.isin(reverse, key).all():
+        return None  # an open edge (or a face wound against its neighbours)
+    normal = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+    length = np.linalg.norm(normal, axis=1)
+    if not (length > 0).all():
+        return None
+    normal /= length[:, None]
+    offset = np.einsum("kj,kj->k", normal, triangles[:, 0])
+    radius = float(np.linalg.norm(unique_points - unique_points.mean(axis=0), axis=1).max())
+    # Faces wound outward keep every vertex behind them: the volume they bound is positive.
+    volume = np.einsum("kj,kj->k", triangles[:, 0], np.cross(triangles[:, 1], triangles[:, 2])).sum() / 6.0
+    if not abs(volume) > 0:
+        return None
+    sign = 1.0 if volume > 0 else -1.0
+    worst = 0.0
+    for start in range(0, len(normal), 512):  # chunks of faces, bounding the (512, V) temporary
+        height = sign * (normal[start:start + 512] @ unique_points.T - offset[start:start + 512, None])
+        worst = max(worst, float(height.max()))
+    if worst > tolerance * radius:
+        return None
+    return triangles if sign > 0 else triangles[:, ::-1].copy()
+
+
+# ------------------------------------------------------------------------------------------------------
+# Hull tables and frames
+# ------------------------------------------------------------------------------------------------------
+
+@dataclass
+class HullTables:
+    """What the per-receiver polygons need of the hulls, packed (H hulls, six planes each).
+
+    vertex (Hv, 3), vertex_start (H + 1,)       unique vertices, m.
+    face_normal (Hf, 3), face_offset (Hf,), face_start (H + 1,)   outward unit normals, n . x = offset.
+    edge_vertex, edge_face (He, 2) int64, edge_start (H + 1,)     each edge's vertices and its two faces
+                                                                  (global rows).
+    centre (H, 3), radius (H,)                  the vertices' mean and the largest distance from it, m.
+    plane_origin, plane_normal, plane_tangent, plane_bitangent (H, 6, 3)
+                                                the supporting planes: normal +-LAMP_AXES[j // 2], origin
+                                                the foot of the centre on the plane.
+    plane_support (H, 6)                        the plane's distance from the centre, m.
+    width (H,) int64                            vertices budgeted per receiver polygon.
+    """
+
+    vertex: np.ndarray
+    vertex_start: np.ndarray
+    face_normal: np.ndarray
+    face_offset: np.ndarray
+    face_start: np.ndarray
+    edge_vertex: np.ndarray
+    edge_face: np.ndarray
+    edge_start: np.ndarray
+    centre: np.ndarray
+    radius: np.ndarray
+    plane_origin: np.ndarray
+    plane_normal: np.ndarray
+    plane_tangent: np.ndarray
+    plane_bitangent: np.ndarray
+    plane_support: np.ndarray
+    width: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.radius)
+
+
+def plane_axes() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The six supporting planes' normals, tangents and bitangents (6, 3) each: +-LAMP_AXES."""
+    axis = np.arange(6) // 2
+    sign = np.where(np.arange(6) % 2 == 0, 1.0, -1.0)
+    normal = sign[:, None] * LAMP_AXES[axis]
+    tangent = LAMP_AXES[(axis + 1) % 3]
+    return normal, tangent, np.cross(normal, tangent)
+
+
+def hull_tables(hulls: EmitterHulls) -> HullTables:
+    """Tables of validated hulls; a ValueError when one is not closed and convex."""
+    normals, tangents, bitangents = plane_axes()
+    parts = {name: [] for name in ("vertex", "face_normal", "face_offset", "edge_vertex", "edge_face")}
+    starts = {"vertex": [0], "face": [0], "edge": [0]}
+    centre, radius, support, width = [], [], [], []
+    for row in range(len(hulls)):  # emitters: a handful
+        faces = hulls.faces_of(row)
+        if closed_convex_faces(faces) is None:
+            raise ValueError(f"emitter hull {row} is not a closed convex mesh")
+        points, vertex = np.unique(faces.reshape(-1, 3), axis=0, return_inverse=True)
+        vertex = vertex.reshape(-1, 3)
+        normal = np.cross(faces[:, 1] - faces[:, 0], faces[:, 2] - faces[:, 0])
+        normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+        directed = np.stack([vertex, np.roll(vertex, -1, axis=1)], axis=-1).reshape(-1, 2)
+        face_of = np.repeat(np.arange(len(faces)), 3)
+        n = len(points)
+        key = directed[:, 0] * n + directed[:, 1]
+        order = np.argsort(key)
+        forward = directed[:, 0] < directed[:, 1]
+        # Each undirected edge once: its forward half, and the face of the reverse half.
+        twin = order[np.searchsorted(key[order], directed[:, 1] * n + directed[:, 0])]
+        edge_vertex = directed[forward]
+        edge_face = np.stack([face_of[forward], face_of[twin[forward]]], axis=1)
+        mean = points.mean(axis=0)
+        reach = float(np.linalg.norm(points - mean, axis=1).max())
+        centre.append(mean)
+        radius.append(reach)
+        support.append(((points - mean) @ normals.T).max(axis=0))
+        width.append(_silhouette_budget(normal, edge_face))
+        parts["vertex"].append(points)
+        parts["face_normal"].append(normal)
+        parts["face_offset"].append(np.einsum("kj,kj->k", normal, faces[:, 0]))
+        parts["edge_vertex"].append(edge_vertex + starts["vertex"][-1])
+        parts["edge_face"].append(edge_face + starts["face"][-1])
+        starts["vertex"].append(starts["vertex"][-1] + len(points))
+        starts["face"].append(starts["face"][-1] + len(faces))
+        starts["edge"].append(starts["edge"][-1] + len(edge_vertex))
+    count = len(hulls)
+    centre = np.array(centre).reshape(count, 3)
+    support = np.array(support).reshape(count, 6)
+    joined = {name: np.concatenate(values) if values else np.zeros((0,) + shape)
+              for (name, values), shape in zip(parts.items(), ((3,), (3,), (), (2,), (2,)))}
+    return HullTables(joined["vertex"], np.array(starts["vertex"], np.int64), joined["face_normal"],
+                      joined["face_offset"], np.array(starts["face"], np.int64),
+                      joined["edge_vertex"].astype(np.int64), joined["edge_face"].astype(np.int64),
+                      np.array(starts["edge"], np.int64), centre, np.array(radius).reshape(count),
+                      centre[:, None] + support[..., None] * normals[None], np.broadcast_to(normals, (count, 6, 3)).copy(),
+                      np.broadcast_to(tangents, (count, 6, 3)).copy(), np.broadcast_to(bitangents, (count, 6, 3)).copy(),
+                      support, np.array(width, np.int64).reshape(count))
+
+
+def _silhouette_budget(face_normal: np.ndarray, edge_face: np.ndarray) -> int:
+    """Vertices to budget for a hull's receiver polygons: its widest silhouette over WIDTH_VIEWS far views
+    (Fibonacci directions), with a margin; a multiple of 4 (the holder square's sides)."""
+    k = np.arange(WIDTH_VIEWS) + 0.5
+    z = 1.0 - 2.0 * k / WIDTH_VIEWS
+    phi = math.pi * (3.0 - math.sqrt(5.0)) * k
+    views = np.stack([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z], axis=1)
+    front = (face_normal @ views.T) > 0        # (F, D): far views see the faces turned towards them
+    edges = (front[edge_face[:, 0]] != front[edge_face[:, 1]]).sum(axis=0)
+    return int(4 * math.ceil((1.25 * edges.max() + 8) / 4))
+
+
+def hull_frames(tables: HullTables, radiance: np.ndarray) -> dict:
+    """The hulls' virtual lights (six per hull, in hull order) as ``facing.facing_frames`` gives a lamp's:
+    origin, tangent, bitangent, normal (K, 3); uv (K, W, 2) and vertices (K, W, 3) the square holding every
+    receiver's polygon (W = the widest hull's budget); vertex_count (K,) each hull's budget; radiance (K, 3);
+    two_sided (K,) False; area (K,); kind FACING_HULL, slot 0..5, source the hull (K,) int64; cap_centre
+    (K, 3), cap_radius (K,); spot_frame, spot_cos_half, spot_smooth; cast_shadow; spread."""
+    count = len(tables)
+    source = np.repeat(np.arange(count), 6)
+    slot = np.tile(np.arange(6), count)
+    width = int(tables.width.max()) if count else 4
+    origin = tables.plane_origin.reshape(-1, 3)
+    normal = tables.plane_normal.reshape(-1, 3)
+    tangent = tables.plane_tangent.reshape(-1, 3)
+    bitangent = tables.plane_bitangent.reshape(-1, 3)
+    reach = HOLDER_REACH * tables.radius[source]
+    uv = np.zeros((len(source), width, 2))
+    vertex_count = tables.width[source]
+    for budget in np.unique(vertex_count):  # hull budgets: a handful
+        rows = np.flatnonzero(vertex_count == budget)
+        square = _square_perimeter(int(budget))
+        uv[rows, :budget] = reach[rows, None, None] * square[None]
+        uv[rows, budget:] = uv[rows, budget - 1:budget]
+    vertices = origin[:, None] + uv[..., :1] * tangent[:, None] + uv[..., 1:] * bitangent[:, None]
+    return dict(origin=origin, tangent=tangent, bitangent=bitangent, normal=normal, uv=uv, vertices=vertices,
+                vertex_count=vertex_count, radiance=np.asarray(radiance, np.float64)[source],
+                two_sided=np.zeros(len(source), bool), area=(2.0 * reach) ** 2,
+                kind=np.full(len(source), FACING_HULL, np.int64), slot=slot, source=source,
+                cap_centre=tables.centre[source], cap_radius=tables.radius[source],
+                spot_frame=np.broadcast_to(np.eye(3), (len(source), 3, 3)).copy(),
+                spot_cos_half=np.full(len(source), -2.0), spot_smooth=np.zeros(len(source)),
+                cast_shadow=np.ones(len(source), bool), spread=np.full(len(source), np.pi))
+
+
+def _square_perimeter(points: int) -> np.ndarray:
+    """``points`` (a multiple of 4) points (points, 2) counter-clockwise along the square [-1, 1]^2."""
+    side = points // 4
+    t = -1.0 + 2.0 * np.arange(side) / side
+    return np.concatenate([np.stack([t, -np.ones(side)], 1), np.stack([np.ones(side), t], 1),
+                           np.stack([-t, np.ones(side)], 1), np.stack([-np.ones(side), -t], 1)])
+
+
+# ------------------------------------------------------------------------------------------------------
+# Each receiver's polygon
+# ------------------------------------------------------------------------------------------------------
+
+HULL_TAKEN, HULL_NEAR, HULL_OVERFLOW = 0, 1, 2
+
+
+def hull_polygons(frames, light: np.ndarray, position: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Each receiver's polygon of a hull's virtual light, in that light's plane.
+
+    Parameters
+    ----------
+    frames : LightFrames with ``hulls``; light : (N,) int64 hull virtual lights; position : (N, 3) receivers.
+
+    Returns
+    -------
+    uv : (N, W, 2) float64   counter-clockwise about the plane's normal (padded with its last vertex);
+    count : (N,) int64       its vertices, 0 where the receiver takes another of the hull's planes or none;
+    status : (N,) int64      HULL_TAKEN, or HULL_NEAR (no plane takes the receiver: inside the planes' box)
+                             or HULL_OVERFLOW (its silhouette has more vertices than budgeted);
+    taken : (N,) int64       the plane (slot 0..5) the receiver takes, -1 for none.
+    """
+    tables = frames.hulls
+    light = np.ascontiguousarray(light, np.int64)
+    width = int(tables.width.max()) if len(tables) else 4
+    uv = np.empty((len(light), width, 2))
+    count = np.empty(len(light), np.int64)
+    status = np.empty(len(light), np.int64)
+    taken = np.empty(len(light), np.int64)
+    faces = int(np.diff(tables.face_start).max()) if len(tables) else 1
+    vertices = int(np.diff(tables.vertex_start).max()) if len(tables) else 1
+    front = np.zeros(faces + vertices, np.bool_)  # face flags, then vertex flags (``_silhouette_vertices``)
+    rim = np.zeros(vertices, np.int64)
+    _hull_polygons(light, np.ascontiguousarray(position, np.float64), frames.source, frames.slot,
+                   tables.vertex, tables.vertex_start, tables.face_normal, tables.face_offset, tables.face_start,
+                   tables.edge_vertex, tables.edge_face, tables.edge_start, tables.centre, tables.radius,
+                   tables.plane_origin, tables.plane_normal, tables.plane_tangent, tables.plane_bitangent,
+                   tables.plane_support, tables.width, HOLDER_REACH, uv, count, status, taken, front, rim)
+    return uv, count, status, taken
+
+
+@njit(cache=True, nogil=True)
+def _silhouette_vertices(r, h, vertex_start, face_normal, face_offset, face_start, edge_vertex, edge_face,
+                         edge_start, front, out):
+    """The vertices (rows of ``vertex``) of hull h's edges between a face turned towards r and one turned
+    away, into ``out``; returns their count (0: r sees no face, inside the hull)."""
+    f_start = face_start[h]
+    any_front = False
+    for f in range(f_start, face_start[h + 1]):
+        front[f - f_start] = face_normal[f, 0] * r[0] + face_normal[f, 1] * r[1] + face_normal[f, 2] * r[2] \
+            > face_offset[f]
+        any_front |= front[f - f_start]
+    if not any_front:
+        return 0
+    v0 = vertex_start[h]
+    seen = front[face_start[h + 1] - f_start:]  # the scratch's tail: one flag per vertex
+    for v in range(vertex_start[h + 1] - v0):
+        seen[v] = False
+    m = 0
+    for e in range(edge_start[h], edge_start[h + 1]):
+        if front[edge_face[e, 0] - f_start] != front[edge_face[e, 1] - f_start]:
+            for side in range(2):
+                v = edge_vertex[e, side]
+                if not seen[v - v0]:
+                    seen[v - v0] = True
+                    out[m] = v
+                    m += 1
+    return m
+
+
+@njit(cache=True, nogil=True)
+def _project_silhouette(r, h, j, rim, m, vertex, radius, plane_origin, plane_normal, plane_tangent,
+                        plane_bitangent, plane_support, reach, out):
+    """The outline of the rim vertices ``rim[:m]`` seen from r, projected on hull h's plane j, into ``out``
+    (budget, 2); returns its vertex count, -1 where a point falls outside the holder, -2 where the outline
+    has more vertices than the budget."""
+    height = 0.0
+    ru, rv = 0.0, 0.0
+    for k in range(3):
+        rel = r[k] - plane_origin[h, j, k]
+        height += rel * plane_normal[h, j, k]
+        ru += rel * plane_tangent[h, j, k]
+        rv += rel * plane_bitangent[h, j, k]
+    limit = reach * radius[h]
+    points = np.empty((m, 2))
+    for i in range(m):
+        v = rim[i]
+        hv, vu, vv = 0.0, 0.0, 0.0
+        for k in range(3):
+            rel = vertex[v, k] - plane_origin[h, j, k]
+            hv += rel * plane_normal[h, j, k]
+            vu += rel * plane_tangent[h, j, k]
+            vv += rel * plane_bitangent[h, j, k]
+        hv = min(hv, 0.0)  # behind the supporting plane (rounding aside)
+        t = height / (height - hv)
+        pu, pv = ru + t * (vu - ru), rv + t * (vv - rv)
+        if abs(pu) > limit or abs(pv) > limit:
+            return -1
+        points[i, 0], points[i, 1] = pu, pv
+    return _convex_hull(points, m, out)
+
+
+@njit(cache=True, nogil=True)
+def _convex_hull(points, m, out):
+    """The convex hull of points[:m] (m, 2), counter-clockwise, collinear points left out, into ``out``
+    (Andrew's monotone chain); returns its vertex count. For a convex emitter every rim point is on it; for
+    a nearly convex one (folds of a subdivided surface) it is the outline of the vertices' hull."""
+    order = np.argsort(points[:m, 0])
+    for i in range(1, m):  # ties in u ordered by v (rare: an insertion pass)
+        k = i
+        while k > 0 and points[order[k - 1], 0] == points[order[k], 0] \
+                and points[order[k - 1], 1] > points[order[k], 1]:
+            order[k - 1], order[k] = order[k], order[k - 1]
+            k -= 1
+    chain = np.empty(2 * m, np.int64)
+    size = 0
+    for sweep in range(2):  # the lower chain left to right, then the upper right to left
+        start = size
+        for i in range(m):
+            p = order[i] if sweep == 0 else order[m - 1 - i]
+            while size >= start + 2:
+                a, b = chain[size - 2], chain[size - 1]
+                turn = (points[b, 0] - points[a, 0]) * (points[p, 1] - points[a, 1]) \
+                    - (points[b, 1] - points[a, 1]) * (points[p, 0] - points[a, 0])
+                if turn > 0:
+                    break
+                size -= 1
+            chain[size] = p
+            size += 1
+        size -= 1  # each chain's last point starts the other
+    if size > out.shape[0]:
+        return -2
+    for i in range(size):
+        out[i, 0], out[i, 1] = points[chain[i], 0], points[chain[i], 1]
+    return size
+
+
+@njit(cache=True, nogil=True)
+def _hull_polygons(light, position, source, slot, vertex, vertex_start, face_normal, face_offset, face_start,
+                   edge_vertex, edge_face, edge_start, centre, radius, plane_origin, plane_normal, plane_tangent,
+                   plane_bitangent, plane_support, width, reach, out_uv, out_count, out_status, out_taken, front, rim):
+    heights = np.empty(6)
+    r = np.empty(3)
+    for n in range(len(light)):
+        l = light[n]
+        h = source[l]
+        for k in range(3):
+            r[k] = position[n, k]
+        out_count[n] = 0
+        out_status[n] = HULL_NEAR
+        out_taken[n] = -1
+        for j in range(6):
+            value = 0.0
+            for k in range(3):
+                value += (r[k] - plane_origin[h, j, k]) * plane_normal[h, j, k]
+            heights[j] = value
+        order = np.argsort(-heights)
+        if not heights[order[0]] > 1e-9 * radius[h]:
+            continue  # inside the planes' box: no plane takes r
+        m = _silhouette_vertices(r, h, vertex_start, face_normal, face_offset, face_start, edge_vertex, edge_face,
+                                 edge_start, front, rim)
+        if m < 3:
+            continue
+        taken = -1
+        for i in range(6):  # the planes r stands above, highest first: the first its polygon fits
+            j = order[i]
+            if not heights[j] > 1e-9 * radius[h]:
+                break
+            count = _project_silhouette(r, h, j, rim, m, vertex, radius, plane_origin, plane_normal, plane_tangent,
+                                        plane_bitangent, plane_support, reach, out_uv[n, :width[h]])
+            if count == -2:
+                out_status[n] = HULL_OVERFLOW
+                break
+            if count >= 3:
+                taken = j
+                break
+        if taken < 0:
+            continue
+        out_status[n] = HULL_TAKEN
+        out_taken[n] = taken
+        if taken != slot[l]:
+            continue
+        out_count[n] = count
+        for v in range(count, out_uv.shape[1]):
+            out_uv[n, v, 0], out_uv[n, v, 1] = out_uv[n, count - 1, 0], out_uv[n, count - 1, 1]
+
+
+def taken_hull_planes(frames, position: np.ndarray) -> np.ndarray:
+    """(N, K) bool over the frames' hull rows (K = 6 per hull, in frame order): the plane each receiver
+    (N, 3) takes of each hull (``hull_polygons``), computed once per receiver and hull."""
+    rows = np.flatnonzero(frames.kind == FACING_HULL)
+    out = np.zeros((len(position), len(rows)), bool)
+    for column in range(0, len(rows), 6):  # hulls: a handful
+        taken = hull_polygons(frames, np.full(len(position), rows[column], np.int64), position)[3]
+        out[:, column:column + 6] = taken[:, None] == frames.slot[rows[column:column + 6]][None]
+    return out
+
+
+def near_receivers(frames, points: np.ndarray) -> dict[int, int]:
+    """For each hull (by row), how many of ``points`` (N, 3) get none of its light (HULL_NEAR or
+    HULL_OVERFLOW from every plane), excluding points inside it; only hulls with some."""
+    out = {}
+    if frames.hulls is None or len(frames.hulls) == 0 or len(points) == 0:
+        return out
+    tables = frames.hulls
+    first_rows = np.flatnonzero((frames.kind == FACING_HULL) & (frames.slot == 0))
+    for light in first_rows:  # hulls: a handful
+        h = int(frames.source[light])
+        faces = slice(tables.face_start[h], tables.face_start[h + 1])
+        on_or_inside = np.zeros(len(points), bool)
+        for start in range(0, len(points), 4096):  # batches of points, bounding the (4096, F) heights
+            height = points[start:start + 4096] @ tables.face_normal[faces].T - tables.face_offset[faces]
+            # Float32 positions of the emitter's own surface lie within rounding of its faces.
+            tolerance = 1e-5 * (tables.radius[h] + np.abs(tables.centre[h]).max())
+            on_or_inside[start:start + 4096] = (height <= tolerance).all(axis=1)
+        outside = np.flatnonzero(~on_or_inside)
+        status = hull_polygons(frames, np.full(len(outside), light, np.int64), points[outside])[2]
+        missed = int((status != HULL_TAKEN).sum())
+        if missed:
+            out[int(frames.source[light])] = missed
+    return out
+
+
+def nearby_geometry(tables: HullTables, triangles: np.ndarray, batch: int = 65536) -> np.ndarray:
+    """(H,) bool: hulls with a scene triangle (T, 3, 3) partly within the reach of the region their planes'
+    rays cross behind the plane (HOLDER_REACH radii about the centre, a ball of sqrt(2 HOLDER_REACH^2 + 4)
+    radii holding it), not inside the hull: geometry there may block some of the light unseen."""
+    out = np.zeros(len(tables), bool)
+    for h in range(len(tables)):  # hulls: a handful
+        ball = math.sqrt(2.0 * HOLDER_REACH ** 2 + 4.0) * tables.radius[h]
+        normal = tables.face_normal[tables.face_start[h]:tables.face_start[h + 1]]
+        offset = tables.face_offset[tables.face_start[h]:tables.face_start[h + 1]]
+        tolerance = NEAR_CONVEX * tables.radius[h]
+        for start in range(0, len(triangles), batch):  # batches of triangles
+            part = triangles[start:start + batch]
+            low, high = part.min(axis=1), part.max(axis=1)
+            close = np.flatnonzero((np.maximum(low - tables.centre[h], 0.0) ** 2
+                                    + np.maximum(tables.centre[h] - high, 0.0) ** 2).sum(axis=1) < ball ** 2)
+            if len(close) == 0:
+                continue
+            corners = part[close].reshape(-1, 3)
+            inside = ((corners @ normal.T - offset) <= tolerance).all(axis=1).reshape(-1, 3).all(axis=1)
+            if not inside.all():
+                out[h] = True
+                break
+    return out
+
+
+def compile_emitters():
+    """Compile ``_hull_polygons`` and its helpers (or load them from Numba's cache) on a one-hull dummy;
+    returns them."""
+    faces = np.array([[[0, 0, 0], [0, 1, 0], [1, 0, 0]], [[0, 0, 0], [1, 0, 0], [0, 0, 1]],
+                      [[0, 0, 0], [0, 0, 1], [0, 1, 0]], [[1, 0, 0], [0, 1, 0], [0, 0, 1]]], np.float64)
+    tables = hull_tables(EmitterHulls(faces, np.zeros(4, np.int64), np.ones((1, 3))))
+
+    class _Frames:
+        hulls = tables
+        source = np.zeros(6, np.int64)
+        slot = np.arange(6)
+
+    hull_polygons(_Frames, np.zeros(1, np.int64), np.array([[2.0, 2.0, 2.0]]))
+    return _hull_polygons, _silhouette_vertices, _project_silhouette, _convex_hull

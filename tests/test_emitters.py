@@ -1,0 +1,209 @@
+"""Mesh emitters as few lights (``emitters``): grouping, exact silhouettes, renders equal to one light per
+triangle, limits and bad input."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from lazyvis_addon.core import Camera, Lights, Materials, Scene, Settings, render
+from lazyvis_addon.core.demo_scenes import box_triangles, icosphere_triangles, look_at, quad_triangles
+from lazyvis_addon.core.emitters import (HULL_NEAR, HULL_TAKEN, closed_convex_faces, group_mesh_emitters,
+                                         hull_polygons, near_receivers, planar_convex_union)
+from lazyvis_addon.core.geometry import light_frames
+from lazyvis_addon.core.scene import EmitterHulls
+
+CENTRES = Settings(aa_samples=1)
+RADIANCE = 4.0
+
+
+def triangle_solid_angle(apex, triangles):
+    """Signed solid angles (K,) of triangles (K, 3, 3) seen from ``apex`` (3,) (Van Oosterom and Strackee)."""
+    a, b, c = (triangles[:, i] - apex for i in range(3))
+    la, lb, lc = (np.linalg.norm(x, axis=1) for x in (a, b, c))
+    numerator = np.einsum("ij,ij->i", a, np.cross(b, c))
+    denominator = la * lb * lc + np.einsum("ij,ij->i", a, b) * lc + np.einsum("ij,ij->i", a, c) * lb \
+        + np.einsum("ij,ij->i", b, c) * la
+    return 2.0 * np.arctan2(numerator, denominator)
+
+
+def grid_triangles(corner, u, v, n):
+    """An n x n grid of quads (2 n^2 triangles) spanning corner + [0, 1] u + [0, 1] v."""
+    corner, u, v = (np.asarray(x, np.float64) for x in (corner, u, v))
+    out = []
+    for i in range(n):  # a test mesh's rows
+        for j in range(n):
+            p = corner + (i / n) * u + (j / n) * v
+            out.append(quad_triangles([p, p + u / n, p + u / n + v / n, p + v / n]))
+    return np.concatenate(out)
+
+
+def emitter_lights(triangles, radiance=RADIANCE):
+    return Lights(triangles, np.full(len(triangles), 3), np.full((len(triangles), 3), radiance),
+                  np.ones(len(triangles), bool))
+
+
+# -- grouping ------------------------------------------------------------------------------------------
+
+def test_closed_convex_meshes_are_found_and_wound_outward():
+    sphere = icosphere_triangles((0.2, -0.1, 1.0), 0.4, 2)
+    assert closed_convex_faces(sphere) is sphere
+    inward = sphere[:, ::-1]
+    np.testing.assert_array_equal(closed_convex_faces(inward), sphere)
+    assert closed_convex_faces(box_triangles((0, 0, 0), 1.0, 0.3)) is not None
+    assert closed_convex_faces(sphere[1:]) is None  # open: a face missing
+    dented = sphere.copy()
+    top = np.argmax(dented.reshape(-1, 3)[:, 2])
+    apex = dented.reshape(-1, 3)[top].copy()
+    dented[(dented == apex).all(axis=2)] = apex - np.array([0.0, 0.0, 0.2])  # a vertex pushed in: concave
+    assert closed_convex_faces(dented) is None
+
+
+def test_planar_convex_emitters_become_one_polygon_of_the_same_area():
+    panel = grid_triangles((0, 0, 2), (1.0, 0.2, 0), (0, 0.5, 0.1), 4)
+    polygon = planar_convex_union(panel)
+    assert polygon is not None and len(polygon) == 4
+    doubled = np.linalg.norm(np.cross(panel[:, 1] - panel[:, 0], panel[:, 2] - panel[:, 0]), axis=1).sum()
+    area = 0.5 * np.linalg.norm(sum(np.cross(polygon[k], polygon[(k + 1) % 4]) for k in range(4)))
+    assert area == pytest.approx(0.5 * doubled, rel=1e-12)
+    # Its winding is the triangles': the same emitting normal.
+    normal = np.cross(polygon[1] - polygon[0], polygon[2] - polygon[0])
+    assert normal @ np.cross(panel[0, 1] - panel[0, 0], panel[0, 2] - panel[0, 0]) > 0
+    l_shape = np.concatenate([grid_triangles((0, 0, 0), (1, 0, 0), (0, 1, 0), 1),
+                              grid_triangles((1, 0, 0), (1, 0, 0), (0, 1, 0), 1),
+                              grid_triangles((0, 1, 0), (1, 0, 0), (0, 1, 0), 1)])
+    assert planar_convex_union(l_shape) is None
+    bent = panel.copy()
+    bent[0, 0, 2] += 0.1
+    assert planar_convex_union(bent) is None
+
+
+def test_grouping_keeps_what_it_cannot_merge_and_names_its_sources():
+    sphere = icosphere_triangles((0, 0, 1), 0.3, 1)
+    panel = grid_triangles((2, 0, 1), (0.5, 0, 0), (0, 0.5, 0), 3)
+    l_shape = np.concatenate([grid_triangles((0, 3, 1), (1, 0, 0), (0, 1, 0), 1),
+                              grid_triangles((1, 3, 1), (1, 0, 0), (0, 1, 0), 1),
+                              grid_triangles((0, 4, 1), (1, 0, 0), (0, 1, 0), 1)])
+    area_light = quad_triangles([(0, 0, 3), (1, 0, 3), (1, 1, 3), (0, 1, 3)])[:1]
+    lights = emitter_lights(np.concatenate([area_light, sphere, panel, l_shape]))
+    part = np.concatenate([[-1], np.zeros(len(sphere)), np.ones(len(panel)), np.full(len(l_shape), 2)]).astype(int)
+    grouped, hulls, light_source, hull_source = group_mesh_emitters(lights, part)
+    assert len(hulls) == 1 and len(hulls.triangles) == len(sphere)
+    assert len(grouped) == 1 + len(l_shape) + 1  # the ungrouped light, the L's triangles, the panel
+    assert list(grouped.vertex_count[-1:]) == [4]
+    np.testing.assert_array_equal(hull_source, [1])
+    assert light_source[0] == 0 and light_source[-1] == 1 + len(sphere)
+
+
+# -- each receiver's polygon -----------------------------------------------------------------------------
+
+def hull_scene_frames(triangles):
+    hulls = EmitterHulls(triangles, np.zeros(len(triangles), np.int64), [[RADIANCE] * 3])
+    return light_frames(Lights.empty(), hulls=hulls)
+
+
+def test_each_receiver_takes_one_plane_whose_polygon_subtends_the_emitter_exactly():
+    sphere = icosphere_triangles((0.1, 0.2, 0.3), 0.5, 3)
+    frames = hull_scene_frames(sphere)
+    rng = np.random.default_rng(3)
+    direction = rng.normal(size=(400, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    receivers = np.array([0.1, 0.2, 0.3]) + direction * rng.uniform(0.9, 5.0, size=(400, 1))  # 1.8 to 10 radii
+    counts, statuses = [], []
+    for light in range(len(frames)):  # the hull's six planes
+        uv, count, status, _ = hull_polygons(frames, np.full(len(receivers), light), receivers)
+        counts.append(count)
+        statuses.append(status)
+        for n in np.flatnonzero(count > 0)[:40]:
+            polygon = frames.origin[light] + uv[n, :count[n], :1] * frames.tangent[light] \
+                + uv[n, :count[n], 1:] * frames.bitangent[light]
+            fan = np.stack([np.repeat(polygon[:1], count[n] - 2, 0), polygon[1:-1], polygon[2:]], axis=1)
+            facing = np.einsum("kj,kj->k", np.cross(sphere[:, 1] - sphere[:, 0], sphere[:, 2] - sphere[:, 0]),
+                               receivers[n] - sphere[:, 0]) > 0
+            expected = abs(triangle_solid_angle(receivers[n], sphere[facing]).sum())
+            assert abs(triangle_solid_angle(receivers[n], fan).sum()) == pytest.approx(expected, rel=1e-12)
+    taken = (np.array(counts) > 0).sum(axis=0)
+    assert (taken == 1).all()
+    assert (np.array(statuses) == HULL_TAKEN).all()
+
+
+def test_receivers_inside_or_against_the_emitter_take_no_plane():
+    sphere = icosphere_triangles((0, 0, 0), 1.0, 2)
+    frames = hull_scene_frames(sphere)
+    inside = np.array([[0.0, 0.0, 0.0], [0.2, -0.3, 0.1]])
+    _, count, status, _ = hull_polygons(frames, np.zeros(2, np.int64), inside)
+    assert (count == 0).all() and (status == HULL_NEAR).all()
+
+
+# -- renders -----------------------------------------------------------------------------------------------
+
+def sphere_over_floor(sphere, hulls: bool, resolution=24, blocker=True):
+    floor = quad_triangles([(-3, -3, 0), (3, -3, 0), (3, 3, 0), (-3, 3, 0)])
+    slab = quad_triangles([(-0.4, -0.1, 0.15), (0.4, -0.1, 0.15), (0.4, 0.1, 0.15), (-0.4, 0.1, 0.15)])
+    geometry = [floor, slab] if blocker else [floor]
+    triangles = np.concatenate(geometry + [sphere])
+    material = np.concatenate([np.zeros(sum(len(g) for g in geometry), np.int64), np.ones(len(sphere), np.int64)])
+    materials = Materials(np.array([[0.8, 0.8, 0.8], [0.0, 0.0, 0.0]]), np.array([[0.0] * 3, [RADIANCE] * 3]))
+    lights = emitter_lights(sphere)
+    hull_rows = EmitterHulls.empty()
+    if hulls:
+        lights, hull_rows, _, _ = group_mesh_emitters(lights, np.zeros(len(sphere), np.int64))
+    camera = Camera.perspective(look_at((0.0, -3.0, 3.0), (0.0, 0.0, 0.3)), resolution, resolution, np.radians(55))
+    return Scene(triangles, material, materials, lights, camera, hulls=hull_rows)
+
+
+def test_a_sphere_emitter_renders_as_its_triangles_do_but_as_one_light():
+    sphere = icosphere_triangles((0.0, 0.0, 1.0), 0.3, 2)  # 320 faces
+    grouped = sphere_over_floor(sphere, hulls=True)
+    assert len(grouped.lights) == 0 and len(grouped.hulls) == 1 and grouped.light_count == 1
+    one_light = render(grouped, CENTRES)
+    per_triangle = render(sphere_over_floor(sphere, hulls=False), dataclasses.replace(CENTRES, memory_budget_mb=8000))
+    lit = per_triangle.combined[..., :3] > 0
+    assert lit.mean() > 0.5
+    ratio = one_light.combined[..., :3][lit] / per_triangle.combined[..., :3][lit]
+    assert np.abs(ratio - 1).max() < 1e-5
+    # The slab's shadow is on the floor: the same light, blocked.
+    assert per_triangle.combined[..., 0].min() < 0.5 * np.median(per_triangle.combined[..., 0])
+
+
+def test_npz_round_trip_keeps_the_hulls(tmp_path):
+    scene = sphere_over_floor(icosphere_triangles((0.0, 0.0, 1.0), 0.3, 1), hulls=True)
+    scene.save_npz(tmp_path / "scene.npz")
+    loaded = Scene.load_npz(tmp_path / "scene.npz")
+    np.testing.assert_array_equal(loaded.hulls.triangles, scene.hulls.triangles)
+    np.testing.assert_array_equal(loaded.hulls.radiance, scene.hulls.radiance)
+    np.testing.assert_array_equal(render(loaded, CENTRES).combined, render(scene, CENTRES).combined)
+
+
+def test_surfaces_touching_a_hull_are_reported_not_silently_dark():
+    """A floor under a sphere resting on it: floor points within the planes' box get none of its light (the
+    limit), and the render says so; the rest of the floor is lit."""
+    sphere = icosphere_triangles((0.0, 0.0, 0.31), 0.3, 2)
+    scene = sphere_over_floor(sphere, hulls=True, blocker=False, resolution=64)
+    frames = light_frames(scene.lights, hulls=scene.hulls)
+    beside = np.array([[0.0, 0.0, 0.0], [0.05, 0.05, 0.0], [1.5, 0.0, 0.0]])  # two under the sphere, one far
+    assert near_receivers(frames, beside) == {0: 2}
+    out = render(scene, CENTRES)
+    assert any("get none of its light" in w for w in out.warnings)
+    assert any("may not shadow" in w for w in out.warnings)
+    assert (out.combined[..., 0] > 0).mean() > 0.5
+
+
+def test_bad_hulls_are_refused_with_a_clear_message():
+    sphere = icosphere_triangles((0.0, 0.0, 1.0), 0.3, 1)
+    scene = sphere_over_floor(sphere, hulls=True)
+    open_mesh = dataclasses.replace(scene, hulls=EmitterHulls(sphere[1:], np.zeros(len(sphere) - 1, np.int64),
+                                                               [[RADIANCE] * 3]))
+    with pytest.raises(ValueError, match="not a closed convex mesh"):
+        render(open_mesh, CENTRES)
+    with pytest.raises(ValueError, match="at least 4 faces"):
+        render(dataclasses.replace(scene, hulls=EmitterHulls(sphere[:3], np.zeros(3, np.int64), [[1.0] * 3])))
+    nan = sphere.copy()
+    nan[0, 0, 0] = np.nan
+    with pytest.raises(ValueError, match="finite"):
+        render(dataclasses.replace(scene, hulls=EmitterHulls(nan, np.zeros(len(sphere), np.int64), [[1.0] * 3])))
+    with pytest.raises(ValueError, match="must not be negative"):
+        render(dataclasses.replace(scene, hulls=EmitterHulls(sphere, np.zeros(len(sphere), np.int64), [[-1.0] * 3])))
+    dark = render(dataclasses.replace(scene, hulls=EmitterHulls(sphere, np.zeros(len(sphere), np.int64),
+                                                                 [[0.0] * 3])), CENTRES)
+    assert any("zero radiance" in w for w in dark.warnings)
