@@ -7,9 +7,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from lazyvis_addon.core import Settings, render
+from lazyvis_addon.core import Camera, Materials, Scene, Settings, render
 from lazyvis_addon.core import regions, silhouettes
-from lazyvis_addon.core.demo_scenes import box_triangles, plane_under_light, quad_triangles
+from lazyvis_addon.core.demo_scenes import box_triangles, look_at, plane_under_light, quad_triangles
 from lazyvis_addon.core.geometry import light_frames
 from lazyvis_addon.core.scene import Lights
 from lazyvis_addon.core.silhouettes import MeshEdges
@@ -310,3 +310,20 @@ def test_a_repeated_vertex_of_a_clipped_polygon_adds_no_plane_to_its_cone():
     got = _cone_range(start, end, cross, planes[0], valid[0], 0.0, 0.0, 1.0)
     assert got[2] and expected[2]
     np.testing.assert_allclose(got[:2], expected[:2], atol=1e-12)
+
+
+@pytest.mark.xfail(strict=True, reason="issue 13: a blocker piercing a light's polygon (its cut segment inside the "
+                                       "light) is shaded wrong by the silhouettes (414 of 576 pixels off the reference)")
+def test_a_blocker_piercing_a_light_matches_the_reference_integrator():
+    """Found by issue 14's convex emitters (geometry between an emitter and its tangent plane): a slab through
+    a tilted square light, both over a floor. The reference integrator clips the slab at the light's plane."""
+    floor = quad_triangles([(-3, -3, 0), (3, -3, 0), (3, 3, 0), (-3, 3, 0)])
+    light = [(-0.5, 0.5, 1.2), (0.5, 0.5, 0.8), (0.5, -0.5, 0.8), (-0.5, -0.5, 1.2)]  # tilted, facing down
+    slab = quad_triangles([(-0.8, -0.1, 1.0), (0.8, -0.1, 1.0), (0.8, 0.1, 1.0), (-0.8, 0.1, 1.0)])
+    triangles = np.concatenate([floor, slab])
+    camera = Camera.perspective(look_at((0.0, -3.0, 3.0), (0.0, 0.0, 0.3)), 24, 24, np.radians(55))
+    scene = Scene(triangles, np.zeros(len(triangles), np.int64), Materials.diffuse([(0.8,) * 3]),
+                  Lights.from_polygons([light], [[4.0] * 3]), camera)
+    ours = render(scene, Settings(aa_samples=1)).combined[..., 0]
+    reference = render(scene, Settings(aa_samples=1, integrator="reference")).combined[..., 0]
+    np.testing.assert_allclose(ours, reference, rtol=1e-4, atol=1e-7)
