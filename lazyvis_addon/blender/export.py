@@ -32,8 +32,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..core.progress import Progress
+from ..core.emitters import group_mesh_emitters
 from ..core.facing import MAX_SUN_HALF_ANGLE
-from ..core.scene import Camera, FacingLights, Lights, Materials, Scene
+from ..core.scene import Camera, EmitterHulls, FacingLights, Lights, Materials, Scene
 from ..core.texture import EXTENSIONS, INTERPOLATIONS, LINEAR_SPACES, SRGB_SPACES, ImageTexture
 
 DISK_VERTICES_DEFAULT = 32
@@ -142,7 +143,8 @@ class Export:
     scene : Scene
     materials : list[MaterialRecord]    rows of ``scene.materials`` (emitting materials included: their
                                         triangles are lights, not surfaces)
-    light_names : list[str]             object name of each light in ``scene.lights``, then ``scene.facing``
+    light_names : list[str]             object name of each light in ``scene.lights``, then ``scene.facing``,
+                                        then ``scene.hulls`` (a mesh emitter's material name)
     counts : dict                       objects, instances, mesh triangles, emitter triangles, area lights
     """
 
@@ -968,10 +970,10 @@ class _DepsgraphReader:
         if normals is not None and any(p[4] > 0 and p[2] is not None for p in self.parts):
             terminator_offset = np.concatenate([np.full(len(p[0]), p[4] if p[2] is not None else 0.0)
                                                 for p in self.parts])
-        lights, names = self.lights()
+        lights, hulls, names, hull_names = self.lights()
         scene = Scene(triangles, material_index, self.material_table(), lights, camera, background, normals,
-                      corner_uvs, list(self.textures), terminator_offset, FacingLights.concat(self.facing))
-        names = names + list(self.facing_names)
+                      corner_uvs, list(self.textures), terminator_offset, FacingLights.concat(self.facing), hulls)
+        names = names + list(self.facing_names) + hull_names
         return Export(scene, list(self.materials), names, dict(self.counts))
 
     def material_table(self) -> Materials:
@@ -986,16 +988,12 @@ class _DepsgraphReader:
                          specular_level=column("specular_ior_level"), specular_tint=column("specular_tint", (3,)),
                          glossy_colour=column("glossy_colour", (3,)), multiscatter=[m.multiscatter for m in rows])
 
-    def lights(self) -> tuple[Lights, list[str]]:
-        """Area lights (one-sided polygons) followed by emitting triangles (two-sided), padded to V."""
+    def lights(self) -> tuple[Lights, EmitterHulls, list[str], list[str]]:
+        """Area lights (one-sided polygons), then mesh emitters grouped as the core does
+        (``emitters.group_mesh_emitters``: one polygon per planar convex emitter, one hull per closed
+        convex one, two-sided triangles otherwise), padded to V; and the names of lights and hulls."""
         names = list(self.light_names)
-        emitter_triangles = np.concatenate([p[0] for p in self.emitter_parts]) if self.emitter_parts \
-            else np.zeros((0, 3, 3))
-        emitter_material = np.concatenate([p[1] for p in self.emitter_parts]) if self.emitter_parts \
-            else np.zeros(0, np.int64)
-        count = len(self.light_polygons) + len(emitter_triangles)
-        if count == 0:
-            return Lights.empty(), names
+        count = len(self.light_polygons)
         vmax = max([3] + [len(p) for p in self.light_polygons])
         vertices = np.empty((count, vmax, 3))
         vertex_count = np.empty(count, np.int64)
@@ -1003,17 +1001,25 @@ class _DepsgraphReader:
             vertices[index, :len(polygon)] = polygon
             vertices[index, len(polygon):] = polygon[-1]
             vertex_count[index] = len(polygon)
-        first = len(self.light_polygons)
-        vertices[first:, :3] = emitter_triangles
-        vertices[first:, 3:] = emitter_triangles[:, 2:3]
-        vertex_count[first:] = 3
+        area = Lights(vertices, vertex_count, np.reshape(np.array(self.light_radiance, np.float64), (-1, 3)),
+                      np.zeros(count, bool), np.array(self.light_shadows, bool),
+                      np.array(self.light_spreads, np.float64))
+        if not self.emitter_parts:
+            return area, EmitterHulls.empty(), names, []
+        # One emitter per object instance and material: one radiance, one mesh surface.
         emission = np.array([m.emission for m in self.materials]).reshape(-1, 3)
-        radiance = np.concatenate([np.reshape(self.light_radiance, (-1, 3)), emission[emitter_material]])
-        two_sided = np.arange(count) >= first
-        cast_shadow = np.concatenate([np.array(self.light_shadows, bool), np.ones(len(emitter_triangles), bool)])
-        spread = np.concatenate([np.array(self.light_spreads, np.float64), np.full(len(emitter_triangles), math.pi)])
-        names.extend(self.materials[i].name for i in emitter_material)
-        return Lights(vertices, vertex_count, radiance, two_sided, cast_shadow, spread), names
+        triangles = np.concatenate([p[0] for p in self.emitter_parts])
+        material = np.concatenate([p[1] for p in self.emitter_parts])
+        instance = np.repeat(np.arange(len(self.emitter_parts)), [len(p[0]) for p in self.emitter_parts])
+        _, part = np.unique(instance * len(self.materials) + material, return_inverse=True)
+        emitters = Lights(triangles, np.full(len(triangles), 3, np.int64), emission[material],
+                          np.ones(len(triangles), bool))
+        grouped, hulls, light_source, hull_source = group_mesh_emitters(emitters, part.reshape(-1))
+        self.counts["emitter_lights"] = len(grouped)
+        self.counts["emitter_hulls"] = len(hulls)
+        names.extend(self.materials[i].name for i in material[light_source])
+        return (Lights.concat([area, grouped]), hulls, names,
+                [self.materials[i].name for i in material[hull_source]])
 
 
 def _geometric_normals(triangles: np.ndarray) -> np.ndarray:

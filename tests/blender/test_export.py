@@ -884,24 +884,52 @@ def test_reroute_nodes_are_followed(scene):
     assert not warnings
 
 
-def test_emission_mesh_becomes_two_sided_triangle_lights(scene):
+def test_emission_plane_becomes_one_two_sided_polygon_light(scene):
     add_camera(scene)
     bpy.ops.mesh.primitive_plane_add(size=1.0, location=(0.0, 0.0, 2.0))
     panel = bpy.context.object
+    panel.modifiers.new("Subdivision", "SUBSURF").subdivision_type = "SIMPLE"  # 4 coplanar quads
     assign(panel, node_material("Glow", "ShaderNodeEmission", Color=(1.0, 0.5, 0.25), Strength=8.0))
     bpy.ops.mesh.primitive_cube_add()
     exported, _ = export(scene)
     lights = exported.scene.lights
-    assert len(lights) == 2 and lights.two_sided.all() and (lights.vertex_count == 3).all()
-    np.testing.assert_allclose(lights.radiance, [[8.0, 4.0, 2.0]] * 2)
+    # Eight coplanar triangles tiling a square: one light (issue 14), of the same area and radiance.
+    assert len(lights) == 1 and lights.two_sided.all() and list(lights.vertex_count) == [4]
+    np.testing.assert_allclose(lights.radiance, [[8.0, 4.0, 2.0]])
+    assert exported.counts["emitter_triangles"] == 8
     # The panel is also a surface the camera sees, emitting its radiance and reflecting nothing.
-    assert len(exported.scene.triangles) == 14
+    assert len(exported.scene.triangles) == 20
     glow = [m.name for m in exported.materials].index("Glow")
     np.testing.assert_allclose(exported.scene.materials.emission[glow], (8.0, 4.0, 2.0))
     np.testing.assert_allclose(exported.scene.materials.albedo[glow], 0.0)
-    assert exported.light_names == ["Glow", "Glow"]
-    area = sum(polygon_area_normal(lights.vertices[i, :3])[0] for i in range(2))
-    assert area == pytest.approx(1.0)
+    assert exported.light_names == ["Glow"]
+    assert polygon_area_normal(lights.vertices[0, :4])[0] == pytest.approx(1.0)
+
+
+def test_convex_emitters_become_hulls_and_others_stay_triangles(scene):
+    """Issue 14: a subdivided UV sphere (nearly convex), two instances of an emissive cube and a torus
+    (not convex) with one emitting material each."""
+    add_camera(scene)
+    bpy.ops.mesh.primitive_uv_sphere_add(segments=24, ring_count=12, radius=0.3, location=(0.0, 0.0, 2.0))
+    sphere = bpy.context.object
+    sphere.modifiers.new("Subdivision", "SUBSURF").levels = 1
+    assign(sphere, node_material("Bulb", "ShaderNodeEmission", Strength=5.0))
+    bpy.ops.mesh.primitive_cube_add(size=0.2, location=(1.0, 0.0, 1.0))
+    cube = bpy.context.object
+    assign(cube, node_material("Cube glow", "ShaderNodeEmission", Strength=3.0))
+    copy = cube.copy()
+    copy.location = (-1.0, 0.0, 1.0)
+    scene.collection.objects.link(copy)
+    bpy.ops.mesh.primitive_torus_add(major_segments=12, minor_segments=6, location=(0.0, 1.5, 1.0))
+    assign(bpy.context.object, node_material("Ring", "ShaderNodeEmission", Strength=2.0))
+    exported, _ = export(scene)
+    hulls = exported.scene.hulls
+    assert len(hulls) == 3
+    assert sorted(np.bincount(hulls.hull).tolist()) == [12, 12, triangle_count(sphere)]
+    assert sorted(exported.light_names[-3:]) == ["Bulb", "Cube glow", "Cube glow"]
+    lights = exported.scene.lights
+    assert len(lights) == 12 * 6 * 2 and (lights.vertex_count == 3).all()  # the torus, per triangle
+    assert exported.scene.light_count == len(lights) + 3
 
 
 def test_world_background(scene):
