@@ -79,6 +79,40 @@ def emitter_added(scene) -> None:
     add_area_light(location=(1.3, -0.6, 2.2), rotation=(0.2, 0.35, 0.0), shape="SQUARE", size=0.5, energy=6.0)
 
 
+def mesh_emitters(scene) -> None:
+    """Issue 14: emitters of many faces, each one light: an emissive UV sphere under a Subdivision Surface
+    (1,920 triangles whose non-planar quads fold: nearly convex), an emissive cube with an Emission + Diffuse
+    Add Shader (closed convex) and a subdivided emissive disk (planar convex: one polygon), over a floor and
+    two boxes."""
+    add_camera(scene, location=(0.0, -5.2, 3.2), rotation=(math.radians(60), 0.0, 0.0), lens=34.0)
+    bpy.ops.mesh.primitive_plane_add(size=8.0)
+    assign(bpy.context.object, node_material("Floor", Color=(0.65, 0.65, 0.65)))
+    bpy.ops.mesh.primitive_cube_add(size=0.5, location=(0.1, 0.2, 0.25), rotation=(0.0, 0.0, 0.5))
+    assign(bpy.context.object, node_material("Box", Color=(0.7, 0.45, 0.3)))
+    bpy.ops.mesh.primitive_cube_add(size=0.3, location=(-1.1, -0.4, 0.15))
+    assign(bpy.context.object, node_material("Small box", Color=(0.35, 0.5, 0.7)))
+    bpy.ops.mesh.primitive_uv_sphere_add(segments=24, ring_count=12, radius=0.25, location=(-0.6, 0.6, 1.3))
+    sphere = bpy.context.object
+    sphere.modifiers.new("Subdivision", "SUBSURF").levels = 1
+    bpy.ops.object.shade_smooth()
+    assign(sphere, node_material("Bulb", "ShaderNodeEmission", Color=(1.0, 0.85, 0.6), Strength=12.0))
+    bpy.ops.mesh.primitive_cube_add(size=0.3, location=(1.3, 0.1, 0.9), rotation=(0.4, 0.3, 0.2))
+    material = node_material("Cube glow", "ShaderNodeEmission", Color=(0.5, 0.7, 1.0), Strength=10.0)
+    tree = material.node_tree
+    output = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial")
+    emission = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeEmission")
+    diffuse = tree.nodes.new("ShaderNodeBsdfDiffuse")
+    join = tree.nodes.new("ShaderNodeAddShader")
+    tree.links.new(emission.outputs[0], join.inputs[0])
+    tree.links.new(diffuse.outputs[0], join.inputs[1])
+    tree.links.new(join.outputs[0], output.inputs["Surface"])
+    assign(bpy.context.object, material)
+    bpy.ops.mesh.primitive_circle_add(vertices=32, radius=0.35, fill_type="TRIFAN", location=(0.6, 1.4, 1.6),
+                                      rotation=(math.radians(-60), 0.0, 0.3))
+    assign(bpy.context.object, node_material("Disk glow", "ShaderNodeEmission", Color=(1.0, 1.0, 1.0),
+                                             Strength=4.0))
+
+
 def spread_lights(scene) -> None:
     """Issue 14: a floor and two boxes under a square area light of Spread 60 degrees and a rectangle of
     Spread 120 degrees, tilted, so that both the spread's edge and its weight fall across the image."""
@@ -255,6 +289,7 @@ CASES = (
     Case("room", (96, 72), blend="sample_blends/room.blend"),
     Case("emitter_added", (64, 48), build=emitter_added),
     Case("spread_lights", (64, 48), build=spread_lights),
+    Case("mesh_emitters", (64, 48), build=mesh_emitters),
     Case("room_matte", (96, 72), blend="sample_blends/room.blend", prepare=matte),
     # Issue 5: Blender's default pixel filter, LazyVis anti-aliasing with its defaults.
     Case("floating_boxes_filter1.5", (96, 96), blend="sample_blends/floating_boxes.blend", filter_width=DEFAULT_FILTER),
