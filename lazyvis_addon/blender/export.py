@@ -321,17 +321,65 @@ def export_world(world, progress: Progress) -> np.ndarray:
     return background
 
 
+# Node groups entered while following links: inner node (as_pointer) -> the group nodes around it, outermost
+# first, so that an inner input fed by the Group Input reads the group node's input. A group used twice with
+# different surroundings in one material makes its nodes ambiguous (None: unreadable, never a wrong guess).
+_GROUP_PATH: dict = {}
+_AMBIGUOUS = object()
+
+
 def _linked_socket(socket):
-    """The output socket feeding ``socket`` through reroutes, or None (unlinked, muted or a reroute loop)."""
+    """The output socket feeding ``socket`` through reroutes and node groups (into the group's active Group
+    Output, and from a Group Input out to the group node's input), or None (unlinked, muted, a loop, or an
+    ambiguous group)."""
+    path = _GROUP_PATH.get(socket.node.as_pointer(), ())
+    if path is _AMBIGUOUS:
+        return None
+    path = list(path)
     seen = 0
-    while socket.is_linked and seen < 64:
+    while seen < 64:
+        seen += 1
+        if not socket.is_linked:
+            return None
         link = socket.links[0]
         if not link.is_valid or link.is_muted:
             return None
         node = link.from_node
-        if node.bl_idname != "NodeReroute":
-            return None if node.mute else link.from_socket
-        socket, seen = node.inputs[0], seen + 1
+        if node.mute:
+            return None
+        if node.bl_idname == "NodeReroute":
+            socket = node.inputs[0]
+            continue
+        if node.bl_idname == "ShaderNodeGroup" and node.node_tree is not None:
+            output = next((n for n in node.node_tree.nodes if n.bl_idname == "NodeGroupOutput"
+                           and n.is_active_output), None)
+            inner = None if output is None else next(
+                (i for i in output.inputs if i.identifier == link.from_socket.identifier), None)
+            if inner is None:
+                return None
+            path.append(node)
+            socket = inner
+            continue
+        if node.bl_idname == "NodeGroupInput":
+            if not path:
+                return None
+            group = path.pop()
+            outer = next((i for i in group.inputs if i.identifier == link.from_socket.identifier), None)
+            if outer is None:
+                return None
+            if not outer.is_linked:
+                return outer  # an unlinked group input: its value is the group node's (``_socket_value``)
+            socket = outer
+            continue
+        key = node.as_pointer()
+        known = _GROUP_PATH.get(key)
+        if known is not None and known is not _AMBIGUOUS and [g.as_pointer() for g in known] != \
+                [g.as_pointer() for g in path]:
+            _GROUP_PATH[key] = _AMBIGUOUS
+            return None
+        if known is None and path:
+            _GROUP_PATH[key] = tuple(path)
+        return link.from_socket
     return None
 
 
@@ -341,23 +389,37 @@ def _linked_node(socket):
     return None if source is None else source.node
 
 
-def _constant_value(socket):
-    """A float input's value: unlinked, or fed by a Value node (through reroutes); None otherwise."""
+def _socket_value(socket):
+    """An input's constant value: its own when unlinked, a Value node's or an unlinked group input's when
+    fed by one (through reroutes and groups); None when anything else feeds it."""
     if socket is None:
         return None
     if not socket.is_linked:
-        return float(socket.default_value)
-    source = _linked_node(socket)
-    if source is not None and source.bl_idname == "ShaderNodeValue":
-        return float(source.outputs[0].default_value)
+        return socket.default_value
+    source = _linked_socket(socket)
+    if source is None:
+        return None
+    if not source.is_output:  # an unlinked input of the group node around this one
+        return source.default_value
+    if source.node.bl_idname == "ShaderNodeValue":
+        return source.node.outputs[0].default_value
     return None
+
+
+def _constant_value(socket):
+    """A float input's value (``_socket_value``), or None."""
+    value = _socket_value(socket)
+    return None if value is None else float(value)
+
+
+def _colour_of(value) -> tuple[float, float, float]:
+    """RGB of a colour socket's value, or a float's grey (a Value node on a colour input)."""
+    return (float(value),) * 3 if isinstance(value, (int, float)) else tuple(float(c) for c in value[:3])
 
 
 def _unlinked(node, name: str):
     socket = node.inputs.get(name)
-    if socket is None or socket.is_linked:
-        return None
-    return socket.default_value
+    return None if socket is None else _socket_value(socket)
 
 
 class _Inputs:
@@ -374,24 +436,29 @@ class _Inputs:
         socket = self.node.inputs.get(name)
         if socket is None:  # an input this Blender version does not have
             return default
-        if socket.is_linked:
+        value = _socket_value(socket)
+        if value is None:
             self.linked.append(name)
-        return float(socket.default_value)
+            value = socket.default_value
+        return float(value)
 
     def colour(self, name: str) -> tuple[float, float, float]:
         """An unlinked colour input, clamped to >= 0 as Cycles does (linked: its own value, reported)."""
         socket = self.node.inputs[name]
-        if socket.is_linked:
+        value = _socket_value(socket)
+        if value is None:
             self.linked.append(name)
-        return tuple(max(float(c), 0.0) for c in socket.default_value[:3])
+            value = socket.default_value
+        return tuple(max(c, 0.0) for c in _colour_of(value))
 
     def base_colour(self, name: str) -> tuple[float, float, float]:
         """A base colour: its constant, or an Image Texture read into ``self.texture`` (the constant is then
         the fallback); other nodes feeding it fall back to the socket's own colour."""
         socket = self.node.inputs[name]
         constant = tuple(float(c) for c in socket.default_value[:3])
-        if not socket.is_linked:
-            return constant
+        value = _socket_value(socket)
+        if value is not None:
+            return _colour_of(value)
         source = _linked_socket(socket)
         node = None if source is None else source.node
         if node is None or node.bl_idname != "ShaderNodeTexImage" or source.identifier != "Color":
@@ -482,11 +549,13 @@ def read_material(material) -> MaterialRecord | None:
 
     Read: Diffuse BSDF, Principled BSDF, Glossy BSDF, a Mix Shader of a Diffuse and a Glossy BSDF (or of an
     Emission and a Diffuse BSDF) with a constant factor, Emission (its Strength constant or from a Value node),
-    and an Add Shader of an Emission and any of these; a base colour may come from an Image Texture. What a readable node has
+    and an Add Shader of an Emission and any of these; a base colour may come from an Image Texture. Node
+    groups are followed (their Group Output, and Group Input values from the group node). What a readable node has
     that LazyVis does not render is listed in ``MaterialRecord.issues`` (the exporter warns once per kind).
     """
     if material is None:
         return MaterialRecord(DEFAULT_MATERIAL_NAME, "default", DEFAULT_ALBEDO)
+    _GROUP_PATH.clear()  # group contexts are per material tree
     name = material.name
     tree = material.node_tree
     if tree is None:
@@ -527,7 +596,7 @@ def _read_shader(name: str, node, depth: int = 0) -> MaterialRecord | None:
         color, strength = _unlinked(node, "Color"), _constant_value(node.inputs.get("Strength"))
         if color is None or strength is None:
             return None
-        return MaterialRecord(name, "emission", (0.0, 0.0, 0.0), tuple(np.array(color[:3]) * strength))
+        return MaterialRecord(name, "emission", (0.0, 0.0, 0.0), tuple(np.array(_colour_of(color)) * strength))
     if kind == "ShaderNodeMixShader":
         return _read_mix(name, node)
     if kind == "ShaderNodeBsdfPrincipled":

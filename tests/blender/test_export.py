@@ -1054,3 +1054,34 @@ def test_emission_added_or_mixed_with_a_diffuse_bsdf(kind, emission_weight, diff
     np.testing.assert_allclose(record.emission, np.array([1.0, 0.5, 0.25]) * 4.0 * emission_weight, rtol=1e-6)
     np.testing.assert_allclose(record.albedo, np.array([0.2, 0.4, 0.6]) * diffuse_weight, rtol=1e-6)
     assert record.is_emitter and record.kind == "diffuse"
+
+
+def test_node_groups_are_followed_with_their_inputs():
+    """Issue 14: an Emission inside a node group, its Strength from the Group Input (set on the group node)
+    and its colour fixed inside; and a Diffuse colour from a group input fed by a Value node outside."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    group = bpy.data.node_groups.new("Glow group", "ShaderNodeTree")
+    group.interface.new_socket("Strength", in_out="INPUT", socket_type="NodeSocketFloat")
+    group.interface.new_socket("Shader", in_out="OUTPUT", socket_type="NodeSocketShader")
+    inside_in = group.nodes.new("NodeGroupInput")
+    inside_out = group.nodes.new("NodeGroupOutput")
+    emission = group.nodes.new("ShaderNodeEmission")
+    emission.inputs["Color"].default_value = (1.0, 0.5, 0.25, 1.0)
+    group.links.new(inside_in.outputs["Strength"], emission.inputs["Strength"])
+    group.links.new(emission.outputs[0], inside_out.inputs["Shader"])
+    material = node_material("Grouped glow")
+    tree = material.node_tree
+    tree.nodes.remove(next(n for n in tree.nodes if n.bl_idname == "ShaderNodeBsdfDiffuse"))
+    node = tree.nodes.new("ShaderNodeGroup")
+    node.node_tree = group
+    node.inputs["Strength"].default_value = 7.0
+    output = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial")
+    tree.links.new(node.outputs["Shader"], output.inputs["Surface"])
+    record = read_material(material)
+    assert record.is_emitter
+    np.testing.assert_allclose(record.emission, (7.0, 3.5, 1.75))
+    # The same group fed by a Value node outside.
+    value = tree.nodes.new("ShaderNodeValue")
+    value.outputs[0].default_value = 2.0
+    tree.links.new(value.outputs[0], node.inputs["Strength"])
+    np.testing.assert_allclose(read_material(material).emission, (2.0, 1.0, 0.5))
