@@ -58,23 +58,31 @@ def emitter_panel(scene) -> None:
                    energy=6.0, normalize=False)
 
 
-def emitter_added(scene) -> None:
-    """Issue 14: a floor, a slab and a tilted panel whose material is an Emission (Strength from a Value node)
-    and a Diffuse BSDF joined by an Add Shader, as public scenes make emitters, beside a square area light."""
-    panel = _floor_slab_and_panel(scene)
-    material = node_material("Glow", "ShaderNodeEmission", Color=(1.0, 0.6, 0.3))
+def _emission_and_diffuse(name, color, strength, diffuse_colour=None):
+    """A material whose output is an Add Shader of an Emission and a Diffuse BSDF, as public scenes make
+    emitters; returns it and its Emission node."""
+    material = node_material(name, "ShaderNodeEmission", Color=color, Strength=strength)
     tree = material.node_tree
     output = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial")
     emission = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeEmission")
-    value = tree.nodes.new("ShaderNodeValue")
-    value.outputs[0].default_value = 5.0
-    tree.links.new(value.outputs[0], emission.inputs["Strength"])
     diffuse = tree.nodes.new("ShaderNodeBsdfDiffuse")
-    diffuse.inputs["Color"].default_value = (0.5, 0.5, 0.5, 1.0)
+    if diffuse_colour is not None:
+        diffuse.inputs["Color"].default_value = diffuse_colour
     join = tree.nodes.new("ShaderNodeAddShader")
     tree.links.new(emission.outputs[0], join.inputs[0])
     tree.links.new(diffuse.outputs[0], join.inputs[1])
     tree.links.new(join.outputs[0], output.inputs["Surface"])
+    return material, emission
+
+
+def emitter_added(scene) -> None:
+    """Issue 14: a floor, a slab and a tilted panel whose material is an Emission (Strength from a Value node)
+    and a Diffuse BSDF joined by an Add Shader, as public scenes make emitters, beside a square area light."""
+    panel = _floor_slab_and_panel(scene)
+    material, emission = _emission_and_diffuse("Glow", (1.0, 0.6, 0.3), 1.0, (0.5, 0.5, 0.5, 1.0))
+    value = material.node_tree.nodes.new("ShaderNodeValue")
+    value.outputs[0].default_value = 5.0
+    material.node_tree.links.new(value.outputs[0], emission.inputs["Strength"])
     assign(panel, material)
     add_area_light(location=(1.3, -0.6, 2.2), rotation=(0.2, 0.35, 0.0), shape="SQUARE", size=0.5, energy=6.0)
 
@@ -97,16 +105,7 @@ def mesh_emitters(scene) -> None:
     bpy.ops.object.shade_smooth()
     assign(sphere, node_material("Bulb", "ShaderNodeEmission", Color=(1.0, 0.85, 0.6), Strength=12.0))
     bpy.ops.mesh.primitive_cube_add(size=0.3, location=(1.3, 0.1, 0.9), rotation=(0.4, 0.3, 0.2))
-    material = node_material("Cube glow", "ShaderNodeEmission", Color=(0.5, 0.7, 1.0), Strength=10.0)
-    tree = material.node_tree
-    output = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial")
-    emission = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeEmission")
-    diffuse = tree.nodes.new("ShaderNodeBsdfDiffuse")
-    join = tree.nodes.new("ShaderNodeAddShader")
-    tree.links.new(emission.outputs[0], join.inputs[0])
-    tree.links.new(diffuse.outputs[0], join.inputs[1])
-    tree.links.new(join.outputs[0], output.inputs["Surface"])
-    assign(bpy.context.object, material)
+    assign(bpy.context.object, _emission_and_diffuse("Cube glow", (0.5, 0.7, 1.0), 10.0)[0])
     bpy.ops.mesh.primitive_circle_add(vertices=32, radius=0.35, fill_type="TRIFAN", location=(0.6, 1.4, 1.6),
                                       rotation=(math.radians(-60), 0.0, 0.3))
     assign(bpy.context.object, node_material("Disk glow", "ShaderNodeEmission", Color=(1.0, 1.0, 1.0),
