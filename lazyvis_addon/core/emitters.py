@@ -131,7 +131,8 @@ def planar_convex_union(triangles: np.ndarray) -> np.ndarray | None:
     tangent /= np.linalg.norm(tangent)
     bitangent = np.cross(unit, tangent)
     uv = np.stack([(points - points[0]) @ tangent, (points - points[0]) @ bitangent], axis=1)
-    hull = convex_hull_2d(uv, CONVEX_EPS * size * size)
+    chain = np.empty(2 * len(uv), np.int64)
+    hull = chain[:_convex_hull_indices(uv, len(uv), chain, CONVEX_EPS * size * size)]
     if len(hull) < 3:
         return None
     ring = uv[hull]
@@ -139,29 +140,6 @@ def planar_convex_union(triangles: np.ndarray) -> np.ndarray | None:
     if abs(0.5 * doubled.sum() - hull_area) > 1e-6 * hull_area:
         return None
     return points[hull]  # counter-clockwise about ``unit``: the first triangle's winding
-
-
-def convex_hull_2d(points: np.ndarray, tolerance: float = 0.0) -> np.ndarray:
-    """Indices of the convex hull of points (N, 2), counter-clockwise, collinear points left out
-    (Andrew's monotone chain; ``tolerance`` on twice the turn's area)."""
-    order = np.lexsort((points[:, 1], points[:, 0]))
-    unique = order[np.concatenate([[True], (np.diff(points[order], axis=0) != 0).any(axis=1)])]
-
-    def chain(indices):
-        out = []
-        for i in indices:  # hull vertices of one emitter: a polygon's worth, once per emitter
-            while len(out) >= 2:
-                a, b = points[out[-2]], points[out[-1]]
-                if (b[0] - a[0]) * (points[i][1] - a[1]) - (b[1] - a[1]) * (points[i][0] - a[0]) > tolerance:
-                    break
-                out.pop()
-            out.append(i)
-        return out
-
-    if len(unique) < 3:
-        return unique
-    lower, upper = chain(unique), chain(unique[::-1])
-    return np.array(lower[:-1] + upper[:-1], np.int64)
 
 
 def closed_convex_faces(triangles: np.ndarray, tolerance: float = None) -> np.ndarray | None:
@@ -466,9 +444,23 @@ def _project_silhouette(r, h, j, rim, m, vertex, radius, plane_origin, plane_nor
 
 @njit(cache=True, nogil=True)
 def _convex_hull(points, m, out):
-    """The convex hull of points[:m] (m, 2), counter-clockwise, collinear points left out, into ``out``
-    (Andrew's monotone chain); returns its vertex count. For a convex emitter every rim point is on it; for
-    a nearly convex one (folds of a subdivided surface) it is the outline of the vertices' hull."""
+    """The convex hull of points[:m] (m, 2), counter-clockwise, into ``out`` (budget, 2); returns its vertex
+    count, -2 where it has more than the budget. For a convex emitter every rim point is on it; for a nearly
+    convex one (folds of a subdivided surface) it is the outline of the vertices' hull."""
+    chain = np.empty(2 * m, np.int64)
+    size = _convex_hull_indices(points, m, chain)
+    if size > out.shape[0]:
+        return -2
+    for i in range(size):
+        out[i, 0], out[i, 1] = points[chain[i], 0], points[chain[i], 1]
+    return size
+
+
+@njit(cache=True, nogil=True)
+def _convex_hull_indices(points, m, chain, tolerance=0.0):
+    """Andrew's monotone chain over points[:m] (m, 2): the hull's point indices, counter-clockwise with
+    collinear points (a turn of twice the area ``tolerance`` or less) left out, into ``chain`` (2 m,) int64;
+    returns their count."""
     order = np.argsort(points[:m, 0])
     for i in range(1, m):  # ties in u ordered by v (rare: an insertion pass)
         k = i
@@ -476,7 +468,6 @@ def _convex_hull(points, m, out):
                 and points[order[k - 1], 1] > points[order[k], 1]:
             order[k - 1], order[k] = order[k], order[k - 1]
             k -= 1
-    chain = np.empty(2 * m, np.int64)
     size = 0
     for sweep in range(2):  # the lower chain left to right, then the upper right to left
         start = size
@@ -486,17 +477,13 @@ def _convex_hull(points, m, out):
                 a, b = chain[size - 2], chain[size - 1]
                 turn = (points[b, 0] - points[a, 0]) * (points[p, 1] - points[a, 1]) \
                     - (points[b, 1] - points[a, 1]) * (points[p, 0] - points[a, 0])
-                if turn > 0:
+                if turn > tolerance:
                     break
                 size -= 1
             chain[size] = p
             size += 1
         size -= 1  # each chain's last point starts the other
-    if size > out.shape[0]:
-        return -2
-    for i in range(size):
-        out[i, 0], out[i, 1] = points[chain[i], 0], points[chain[i], 1]
-    return size
+    return max(size, 0)
 
 
 @njit(cache=True, nogil=True)
@@ -623,4 +610,4 @@ def compile_emitters():
         slot = np.arange(6)
 
     hull_polygons(_Frames, np.zeros(1, np.int64), np.array([[2.0, 2.0, 2.0]]))
-    return _hull_polygons, _silhouette_vertices, _project_silhouette, _convex_hull
+    return _hull_polygons, _silhouette_vertices, _project_silhouette, _convex_hull, _convex_hull_indices

@@ -626,7 +626,8 @@ def _warn_near_hulls(surface: SurfacePoints, frames, progress: Progress) -> None
     silhouette)."""
     missed = near_receivers(frames, surface.position[surface.hit])
     if missed:
-        progress.warn("surfaces within about 1.7 radii of a convex mesh emitter's centre get none of its light "
+        progress.warn("surfaces within about 1.7 radii of a convex mesh emitter's centre (or seeing more of its "
+                      "outline than budgeted) get none of its light "
                       f"({', '.join(f'emitter {h}: {n} pixel(s)' for h, n in sorted(missed.items()))})")
 
 
