@@ -73,12 +73,14 @@ def jump_at(couple, r, edge_start, third, triangle, cut_light, face_normal, face
 
 
 @njit(cache=True, nogil=True, inline="always")
-def arc_test(couple, cone, cone_valid, r, total, edge_start, edge_end, scratch, out_start, out_end, out_normal,
+def arc_test(couple, cone, cone_valid, r, total, cut, edge_start, edge_end, scratch, out_start, out_end, out_normal,
              out_enter, out_leave, out_jump, m):
     """Whether edge record ``r`` (start, end (E, 3)), whose ``jump_at`` is ``total`` (not 0), is an arc
     crossing the light of ``couple`` (a row of a couple table; cone (V, 3) inward unit normals of the planes
     through the receiver and its clipped light's edges, cone_valid (V,)); if so it is written to row ``m``
-    of the outputs. scratch: (4, 3).
+    of the outputs. ``cut``: the record is a cut segment of this couple's light, which lies in the light's
+    plane by construction (no front part to clip: it bounds the front part of its triangle where that
+    triangle pierces the light). scratch: (4, 3).
     Outputs: start, end, normal (S, 3) directions from the receiver (normal = start x end), enter, leave
     (S,) the range inside the cone (0 <= enter < leave <= 1), jump (S,) int64 (change of D crossing the arc
     from R's side to the other).
@@ -99,7 +101,7 @@ def arc_test(couple, cone, cone_valid, r, total, edge_start, edge_end, scratch, 
         height_b += edge_end[r, k] * couple[COUPLE_TOWARD + k]
     scale = couple[COUPLE_SIZE] + max(abs(a[0]), abs(a[1]), abs(a[2])) + max(abs(b[0]), abs(b[1]), abs(b[2]))
     eps = PLANE_EPS * scale
-    front_a, front_b = height_a > eps, height_b > eps
+    front_a, front_b = (True, True) if cut else (height_a > eps, height_b > eps)
     if not (front_a or front_b):
         return False
     if front_a != front_b:

@@ -695,9 +695,23 @@ def compile_geometry() -> tuple:
     return _irradiance_vectors, _projected_solid_angles_uv, _directions, _clip_by_lines
 
 
+def _first_primes(count: int) -> np.ndarray:
+    """The first ``count`` primes, (count,) int64 (a sieve; count is a few hundred)."""
+    limit = max(16, int(count * (np.log(count + 2) + np.log(np.log(count + 2)) + 2)))
+    sieve = np.ones(limit, bool)
+    sieve[:2] = False
+    for p in range(2, int(limit ** 0.5) + 1):  # the sieve's primes up to sqrt(limit): a few dozen
+        if sieve[p]:
+            sieve[p * p::p] = False
+    return np.flatnonzero(sieve)[:count].astype(np.int64)
+
+
 # Weights of the light's vertices in the reference point: positive (R inside the convex light) and
-# irregular, so that R lies on no arc's plane in any regular arrangement.
-_REFERENCE_WEIGHTS = 1.0 + np.modf(np.arange(1, 257) * 0.6180339887498949 + 0.1234567)[0]
+# irregular, so that R lies on no arc's plane in any regular arrangement: 1 + the fractional parts of the
+# square roots of the primes, between which no relation with small integer coefficients holds. (A golden-
+# ratio sequence has them: its weights k = 1..4 satisfy w1 + w4 = w2 + w3, which put R on the midline of
+# every parallelogram light, where a blocker edge centred under a square light lies.)
+_REFERENCE_WEIGHTS = 1.0 + np.modf(np.sqrt(_first_primes(256).astype(np.float64)))[0]
 
 
 def reference_points(uv: np.ndarray, count: np.ndarray) -> np.ndarray:

@@ -69,6 +69,9 @@ ARC_CHUNK = 1 << 16
 DEPTH_ROUNDS = 64
 # Vertices this close (relative to the scene's coordinates) are welded into one for the edge records.
 WELD_EPS = 1e-10
+# Cut segments' boxes are grown by this (relative to the scene's coordinates), far above detection's
+# tolerance for 'in front of the light's plane' (PLANE_EPS of the coordinates).
+CUT_BOX_MARGIN = 1e-6
 
 
 @dataclass
@@ -192,6 +195,14 @@ class MeshEdges:
     @classmethod
     def _in_tree_order(cls, start, end, third, triangle, light, winding) -> "MeshEdges":
         low, high = np.minimum(start, end), np.maximum(start, end)
+        # A cut segment lies in its light's plane, where detection's hull keeps only what has a point in
+        # front of the plane (beyond its tolerance): its box is grown off the plane, so the tree and the
+        # record test keep it (growing a box only adds candidates).
+        cut = light >= 0
+        if cut.any():
+            margin = CUT_BOX_MARGIN * max(float(np.abs(np.concatenate([low, high])).max()), 1e-300)
+            low[cut] -= margin
+            high[cut] += margin
         n_leaves = max(1, -(-len(light) // LEAF_EDGES))
         padded_leaves = 1 << int(np.ceil(np.log2(n_leaves)))
         if len(light):
@@ -322,6 +333,9 @@ def _silhouette_lights(start, face_normal, face_offset, face_size, triangle, cut
 # light's own faces, a ceiling a light is set into. They block nothing (the edges' slab leaves them out),
 # and a reference depth ray that meets them near its end, by float32 rounding, does not count them.
 PLANE_FACE_EPS = 1e-6
+# A vertex this close to a light's plane (relative to the scene's coordinates) lies on it for the cut
+# segments (the arc test's 'in front' tolerance is PLANE_EPS of the receiver's distances).
+CUT_EPS = 1e-9
 
 
 def _in_light_planes(triangles: np.ndarray, frames: LightFrames) -> np.ndarray:
@@ -337,23 +351,34 @@ def _in_light_planes(triangles: np.ndarray, frames: LightFrames) -> np.ndarray:
 
 def _cut_segments(triangles: np.ndarray, frames: LightFrames, light: int, k: int = 2):
     """Where triangles cross light ``light``'s plane: the segment in the plane, as an edge record whose
-    two 'third vertices' are a vertex in front of the plane and one behind it."""
+    two 'third vertices' are a vertex in front of the plane and one behind it.
+
+    A vertex within CUT_EPS of the scene's size from the plane lies on it (it is an end of the segment), and
+    only a triangle with a vertex beyond that on each side crosses: the faces next to a light's own face
+    (a mesh emitter's), which touch its plane along an edge, are no crossing by rounding. The point where
+    an edge crosses is interpolated from its vertex in front, the same for both triangles on the edge."""
     height = np.einsum("tvk,k->tv", triangles - frames.origin[light], frames.normal[light])
-    above = height >= 0.0
-    crossing = np.flatnonzero(above.any(axis=1) & ~above.all(axis=1) & (height > 0).any(axis=1))
+    scale = max(float(np.abs(triangles).max()) if len(triangles) else 1.0, float(np.abs(frames.origin[light]).max()),
+                1e-300)
+    side = np.where(height > CUT_EPS * scale, 1, np.where(height < -CUT_EPS * scale, -1, 0))
+    crossing = np.flatnonzero((side > 0).any(axis=1) & (side < 0).any(axis=1))
     if len(crossing) == 0:
         return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, k, 3)), np.zeros((0, k), np.int64), \
             np.zeros(0, np.int64)
-    tri, h, up = triangles[crossing], height[crossing], above[crossing]
+    tri, h, side = triangles[crossing], height[crossing], side[crossing]
     following = np.roll(np.arange(3), -1)
-    changes = up != up[:, following]                                    # (C, 3): edge k crosses
-    a, b = h, h[:, following]
+    # Candidate ends: the vertices on the plane, then the edges whose ends lie on opposite sides; a
+    # crossing triangle has exactly two.
+    front_first = (side > 0)[:, :, None]
+    near, far = np.where(front_first, tri, tri[:, following]), np.where(front_first, tri[:, following], tri)
+    h_near, h_far = np.where(side > 0, h, h[:, following]), np.where(side > 0, h[:, following], h)
     with np.errstate(divide="ignore", invalid="ignore"):
-        point = tri + (a / (a - b))[:, :, None] * (tri[:, following] - tri)
-    first_edge = np.argmax(changes, axis=1)
-    second_edge = 2 - np.argmax(changes[:, ::-1], axis=1)
+        on_edge = near + (h_near / (h_near - h_far))[:, :, None] * (far - near)
+    candidates = np.concatenate([tri, on_edge], axis=1)                                      # (C, 6, 3)
+    valid = np.concatenate([side == 0, side * side[:, following] < 0], axis=1)               # (C, 6)
+    first_two = np.argsort(~valid, axis=1, kind="stable")[:, :2]
     rows = np.arange(len(crossing))
-    start, end = point[rows, first_edge], point[rows, second_edge]
+    start, end = candidates[rows, first_two[:, 0]], candidates[rows, first_two[:, 1]]
     third = np.repeat(start[:, None], k, axis=1)
     third[:, 0] = tri[rows, np.argmax(h, axis=1)]
     third[:, 1] = tri[rows, np.argmin(h, axis=1)]
