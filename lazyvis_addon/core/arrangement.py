@@ -36,6 +36,10 @@ MIN_PIECE = 1e-14
 CLEAN_MARGIN = 1e-6
 CLEAN_ANGLE = 1e-9
 
+# An arc whose ends both lie this far (about radians) on one side of the plane through R and a piece's
+# midpoint does not cross the arc between them: far above rounding, so the exact test would agree.
+APART_ROUNDING = 1e-12
+
 
 def visible_fans(arcs, light_dirs: np.ndarray, light_count: np.ndarray, reference: np.ndarray,
                  depth: np.ndarray):
@@ -124,8 +128,15 @@ def _split(seg_start, seg_end, first, n, start, end, normal, lengths, skip, spli
     reach = _norm(seg_start) + _norm(seg_end)
     a0, a1, a2 = seg_start[0], seg_start[1], seg_start[2]
     b0, b1, b2 = seg_end[0], seg_end[1], seg_end[2]
-    # The planes' values at both ends, and the arcs whose plane separates them, without a branch per arc
-    # (which side is data, so a branch would be mispredicted often).
+    # The carrier's own plane: an arc whose two ends lie on one side of it, both farther than twice the
+    # slack (as angles), meets the carrier's great circle nowhere within the slack of its ends (the
+    # plane's value along the arc's circle changes by at most the angle travelled, and the arc is shorter
+    # than a half circle), so the exact test below would reject it: dropped before it.
+    c0, c1, c2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+    margin = 2.0 * SPLIT_SLACK * np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+    # The planes' values at both ends, and the arcs whose plane separates them while the carrier's plane
+    # may separate theirs, without a branch per arc (which side is data, so a branch would be
+    # mispredicted often).
     crossing = 0
     for jj in range(n):
         j = first + jj
@@ -133,8 +144,12 @@ def _split(seg_start, seg_end, first, n, start, end, normal, lengths, skip, spli
         y = normal[j, 0] * b0 + normal[j, 1] * b1 + normal[j, 2] * b2
         va[jj] = x
         vb[jj] = y
+        at_start = c0 * start[j, 0] + c1 * start[j, 1] + c2 * start[j, 2]
+        at_end = c0 * end[j, 0] + c1 * end[j, 1] + c2 * end[j, 2]
+        reach_start, reach_end = margin * lengths[jj, 0], margin * lengths[jj, 1]
+        apart = ((at_start > reach_start) & (at_end > reach_end)) | ((at_start < -reach_start) & (at_end < -reach_end))
         candidates[crossing] = jj
-        crossing += ((x < 0.0) ^ (y < 0.0)) & (x != 0.0) & (y != 0.0) & (j != skip)
+        crossing += ((x < 0.0) ^ (y < 0.0)) & (x != 0.0) & (y != 0.0) & (j != skip) & ~apart
     for c in range(crossing):
         j = first + candidates[c]
         t = va[j - first] / (va[j - first] - vb[j - first])
@@ -154,22 +169,33 @@ def _split(seg_start, seg_end, first, n, start, end, normal, lengths, skip, spli
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _near_depth(seg_start, seg_end, t_mid, own, first, n, start, end, normal, jump, ref, ref_value, depth,
+def _near_depth(seg_start, seg_end, t_mid, own, first, n, start, end, normal, lengths, jump, ref, ref_value, depth,
                 va, vb, mid, point, candidates):
     """D on the reference side of a piece: D(R) plus the jumps of the arcs (not ``own``) that the arc from
     R to the piece's midpoint crosses; which side of an arc's plane the midpoint lies on is interpolated
     from the carrier's end values ``va``, ``vb`` (n,) (``_split``'s). ``mid``, ``point`` (3,) and
-    ``candidates`` (n + 1,) int64: scratch."""
+    ``candidates`` (n + 1,) int64: scratch; ``lengths`` as ``_split``'s."""
     for k in range(3):
         mid[k] = seg_start[k] + t_mid * (seg_end[k] - seg_start[k])
     d = depth
+    # The plane through R and the midpoint: an arc with both ends on one side of it, beyond rounding, does
+    # not meet the arc from R (the exact test below, with no slack, would reject it).
+    c0 = ref[1] * mid[2] - ref[2] * mid[1]
+    c1 = ref[2] * mid[0] - ref[0] * mid[2]
+    c2 = ref[0] * mid[1] - ref[1] * mid[0]
+    margin = APART_ROUNDING * np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
     crossing = 0
     for jj in range(n):  # the planes between R and the midpoint, without a branch per arc (see _split)
+        j = first + jj
         origin_value = ref_value[jj]
         value = (1.0 - t_mid) * va[jj] + t_mid * vb[jj]
+        at_start = c0 * start[j, 0] + c1 * start[j, 1] + c2 * start[j, 2]
+        at_end = c0 * end[j, 0] + c1 * end[j, 1] + c2 * end[j, 2]
+        reach_start, reach_end = margin * lengths[jj, 0], margin * lengths[jj, 1]
+        apart = ((at_start > reach_start) & (at_end > reach_end)) | ((at_start < -reach_start) & (at_end < -reach_end))
         candidates[crossing] = jj
         crossing += ((origin_value < 0.0) ^ (value < 0.0)) & (origin_value != 0.0) & (value != 0.0) & \
-            (first + jj != own)
+            (j != own) & ~apart
     for c in range(crossing):
         j = first + candidates[c]
         origin_value = ref_value[j - first]
@@ -296,7 +322,7 @@ def _fans(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_dirs
                     continue
                 if not known:
                     d_near = _near_depth(seg_start, seg_end, 0.5 * (t0 + t1), -1, first, n, start, end, normal,
-                                         jump, ref, ref_value, depth[c], va, vb, mid, point, candidates)
+                                         lengths, jump, ref, ref_value, depth[c], va, vb, mid, point, candidates)
                     known = True
                 low = min(low, d_near)
                 for axis in range(3):
@@ -322,7 +348,7 @@ def _fans(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_dirs
                 if not t1 > t0 + MIN_PIECE:
                     continue
                 if not known:
-                    d_near = _near_depth(start[i], end[i], 0.5 * (t0 + t1), i, first, n, start, end, normal, jump,
+                    d_near = _near_depth(start[i], end[i], 0.5 * (t0 + t1), i, first, n, start, end, normal, lengths, jump,
                                          ref, ref_value, depth[c], va, vb, mid, point, candidates)
                     known = True
                 d_far = d_near + jump[i]

@@ -49,7 +49,7 @@ from .detection import (HULL_BASE, HULL_BOX_HIGH, HULL_BOX_LOW, HULL_EPS, HULL_H
                         detect_arcs)
 from .blockers import _rank_within, _unique_points
 from .geometry import (_REFERENCE_WEIGHTS, PLANE_EPS, LightFrames, ReceiverLight, _reference_points,
-                       compile_geometry, cross3, reference_points, trim)
+                       compile_geometry, cross3, polygon_bounds, reference_points, trim)
 from .regions import compile_regions, couple_regions
 from .terminator import compile_terminator
 
@@ -758,7 +758,7 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
     unit_query = np.repeat(np.arange(len(keys)), query_units)
     # Each query's and sub-group's (u, v) rectangle around its couples' clipped lights (padding repeats a
     # real vertex).
-    uv_low, uv_high = couples.uv.min(axis=1), couples.uv.max(axis=1)           # (Nc, 2)
+    uv_low, uv_high = polygon_bounds(couples.uv)                                # (Nc, 2)
     query_uv_low, query_uv_high = np.full((len(keys), 2), np.inf), np.full((len(keys), 2), -np.inf)
     np.minimum.at(query_uv_low, couple_query, uv_low)
     np.maximum.at(query_uv_high, couple_query, uv_high)
