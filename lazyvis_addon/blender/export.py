@@ -32,6 +32,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..core.progress import Progress
+from ..core.blackbody import blackbody_rgb
 from ..core.emitters import group_mesh_emitters
 from ..core.facing import MAX_SUN_HALF_ANGLE
 from ..core.scene import Camera, EmitterHulls, FacingLights, Lights, Materials, Scene
@@ -390,8 +391,9 @@ def _linked_node(socket):
 
 
 def _socket_value(socket):
-    """An input's constant value: its own when unlinked, a Value node's or an unlinked group input's when
-    fed by one (through reroutes and groups); None when anything else feeds it."""
+    """An input's constant value: its own when unlinked, a Value or RGB node's, a Blackbody node's colour
+    (of a constant temperature) or an unlinked group input's when fed by one (through reroutes and groups);
+    None when anything else feeds it."""
     if socket is None:
         return None
     if not socket.is_linked:
@@ -401,8 +403,12 @@ def _socket_value(socket):
         return None
     if not source.is_output:  # an unlinked input of the group node around this one
         return source.default_value
-    if source.node.bl_idname == "ShaderNodeValue":
+    kind = source.node.bl_idname
+    if kind in ("ShaderNodeValue", "ShaderNodeRGB"):
         return source.node.outputs[0].default_value
+    if kind == "ShaderNodeBlackbody":
+        temperature = _constant_value(source.node.inputs.get("Temperature"))
+        return None if temperature is None else tuple(blackbody_rgb(temperature))
     return None
 
 
@@ -953,11 +959,15 @@ class _DepsgraphReader:
         if surface is None or not surface.is_linked:
             return np.ones(3)
         node = surface.links[0].from_node
-        strength, color = node.inputs.get("Strength"), node.inputs.get("Color")
-        if node.bl_idname != "ShaderNodeEmission" or strength.is_linked or color.is_linked:
-            self.skip("light node setups other than an unlinked Emission node are read as plain lights", name)
+        if node.bl_idname != "ShaderNodeEmission":
+            self.skip("light node setups other than an Emission node are read as plain lights", name)
             return np.ones(3)
-        return np.array(color.default_value[:3], dtype=np.float64) * float(strength.default_value)
+        strength, color = _constant_value(node.inputs.get("Strength")), _socket_value(node.inputs.get("Color"))
+        if strength is None or color is None:
+            self.skip("light Emission inputs fed by nodes other than Value, RGB or Blackbody are read as plain "
+                      "lights", name)
+            return np.ones(3)
+        return np.array(_colour_of(color), dtype=np.float64) * strength
 
     def add_facing_light(self, obj, matrix: np.ndarray) -> None:
         """A point, spot or sun light as a ``FacingLights`` row (the project's radiometry, measured against

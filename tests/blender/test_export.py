@@ -11,7 +11,8 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from blender_helpers import add_area_light, add_camera, assign, node_material  # noqa: E402
+from blender_helpers import (add_area_light, add_camera, add_light, assign, cycles_reference_tool,  # noqa: E402
+                             node_material, render_to_exr)
 
 from lazyvis_addon.core.scene import FACING_DISK, FACING_SPHERE, FACING_SUN  # noqa: E402
 from lazyvis_addon.blender.export import (  # noqa: E402
@@ -1085,3 +1086,78 @@ def test_node_groups_are_followed_with_their_inputs():
     value.outputs[0].default_value = 2.0
     tree.links.new(value.outputs[0], node.inputs["Strength"])
     np.testing.assert_allclose(read_material(material).emission, (2.0, 1.0, 0.5))
+
+
+# -- blackbody (issue 14) -------------------------------------------------------------------------------
+
+
+def test_blackbody_table_is_blenders_function_between_its_points(scene):
+    """core.blackbody interpolates a table of Blender's blackbody colour (tools/make_blackbody_table.py);
+    at temperatures between the table's points, away from the function's own steps, it is Blender's to 1e-5."""
+    from lazyvis_addon.core.blackbody import blackbody_rgb
+    light = bpy.data.lights.new("probe", "AREA")
+    light.use_temperature = True
+    for temperature in (850.5, 1234.5, 2777.0, 4321.0, 5003.0, 7777.0, 10500.0):
+        light.temperature = temperature
+        expected = np.array(light.temperature_color[:3])
+        np.testing.assert_allclose(blackbody_rgb(light.temperature), expected, atol=1e-5 * expected.max())
+
+
+def _blackbody_emission(temperature: float, strength: float):
+    """An Emission whose Color is a Blackbody node fed by a Value node of ``temperature``."""
+    material = node_material("Ember", "ShaderNodeEmission", Strength=strength)
+    tree = material.node_tree
+    emission = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeEmission")
+    blackbody, value = tree.nodes.new("ShaderNodeBlackbody"), tree.nodes.new("ShaderNodeValue")
+    value.outputs[0].default_value = temperature
+    tree.links.new(value.outputs[0], blackbody.inputs["Temperature"])
+    tree.links.new(blackbody.outputs[0], emission.inputs["Color"])
+    return material
+
+
+def test_blackbody_and_rgb_nodes_feed_emission_and_light_colours(scene):
+    """Issue 14: an Emission coloured by a Blackbody node (its temperature a constant or a Value node) emits
+    Blender's blackbody colour; a light's node tree may colour it the same way, or by an RGB node."""
+    from lazyvis_addon.core.blackbody import blackbody_rgb
+    record = read_material(_blackbody_emission(2500.0, 3.0))
+    assert record.is_emitter
+    np.testing.assert_allclose(record.emission, 3.0 * blackbody_rgb(2500.0), rtol=1e-6)
+    add_camera(scene)
+    light = add_light("POINT", energy=10.0).data
+    plain, _ = export(scene)
+    light.use_nodes = True
+    tree = light.node_tree
+    emission = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeEmission")
+    blackbody = tree.nodes.new("ShaderNodeBlackbody")
+    blackbody.inputs["Temperature"].default_value = 4000.0
+    tree.links.new(blackbody.outputs[0], emission.inputs["Color"])
+    tinted, warnings = export(scene)
+    np.testing.assert_allclose(tinted.scene.facing.intensity[0], plain.scene.facing.intensity[0]
+                               * blackbody_rgb(4000.0), rtol=1e-6)
+    assert not any("node" in w for w in warnings)
+    rgb = tree.nodes.new("ShaderNodeRGB")
+    rgb.outputs[0].default_value = (0.5, 0.25, 1.0, 1.0)
+    tree.links.new(rgb.outputs[0], emission.inputs["Color"])
+    coloured, _ = export(scene)
+    np.testing.assert_allclose(coloured.scene.facing.intensity[0], plain.scene.facing.intensity[0]
+                               * np.array([0.5, 0.25, 1.0]), rtol=1e-6)
+    noise = tree.nodes.new("ShaderNodeTexNoise")
+    tree.links.new(noise.outputs["Color"], emission.inputs["Color"])
+    fallback, warnings = export(scene)
+    np.testing.assert_allclose(fallback.scene.facing.intensity[0], plain.scene.facing.intensity[0], rtol=1e-6)
+    assert any("read as plain lights" in w for w in warnings)
+
+
+def test_blackbody_emission_seen_by_the_camera_is_what_cycles_renders(scene, tmp_path):
+    """A camera ray meeting an emitter returns its emission exactly, so one Cycles sample is the truth: an
+    emissive plane filling the view, coloured by a Blackbody node at 3456 K (between the table's points),
+    renders in LazyVis as in Cycles to 2e-4."""
+    add_camera(scene, location=(0.0, 0.0, 3.0), rotation=(0.0, 0.0, 0.0))
+    bpy.ops.mesh.primitive_plane_add(size=20.0)
+    assign(bpy.context.object, _blackbody_emission(3456.0, 2.0))
+    scene.render.resolution_x, scene.render.resolution_y = 4, 4
+    ours = render_to_exr(scene, tmp_path / "lazyvis.exr")["RGBA"][..., :3]
+    cycles_reference_tool().configure_cycles(scene, samples=1, seed=0, threads=1)
+    theirs = render_to_exr(scene, tmp_path / "cycles.exr")["RGBA"][..., :3]
+    assert theirs[..., 0].min() > 1.0 > theirs[..., 2].max() > 0.1  # a warm colour, not a default white
+    np.testing.assert_allclose(ours, theirs, rtol=2e-4)
