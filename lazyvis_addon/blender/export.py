@@ -35,7 +35,8 @@ from ..core.progress import Progress
 from ..core.blackbody import blackbody_rgb
 from ..core.emitters import group_mesh_emitters
 from ..core.facing import MAX_SUN_HALF_ANGLE
-from ..core.scene import Camera, EmitterHulls, FacingLights, Lights, Materials, Scene
+from ..core.scene import (LOBE_DIFFUSE, LOBE_GLOSSY, LOBES_ALL, Camera, EmitterHulls, FacingLights, Lights,
+                          Materials, Scene)
 from ..core.texture import EXTENSIONS, INTERPOLATIONS, LINEAR_SPACES, SRGB_SPACES, ImageTexture
 
 DISK_VERTICES_DEFAULT = 32
@@ -729,12 +730,13 @@ class _DepsgraphReader:
         # triangles, material, normals, corner UVs (None when no material of the object is textured)
         # triangles, material, shading normals, corner UVs, Shadow Terminator Geometry Offset
         self.parts: list[tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None, float]] = []
-        self.emitter_parts: list[tuple[np.ndarray, np.ndarray]] = []  # triangles, material
+        self.emitter_parts: list[tuple[np.ndarray, np.ndarray, int]] = []  # triangles, material, lobes
         self.light_polygons: list[np.ndarray] = []
         self.light_radiance: list[np.ndarray] = []
         self.light_names: list[str] = []
         self.light_shadows: list[bool] = []  # Cast Shadow of each area light
         self.light_spreads: list[float] = []  # and its Spread (radians)
+        self.light_lobes: list[int] = []  # and the BSDF lobes it reaches (its object's Ray Visibility)
         self.facing: list[FacingLights] = []  # point, spot and sun lights
         self.facing_names: list[str] = []
         self.skipped: dict[str, set[str]] = {}
@@ -855,8 +857,8 @@ class _DepsgraphReader:
         # Emitting triangles are both geometry (seen by the camera, blocking other lights, as in Cycles)
         # and two-sided triangle lights.
         emitting = np.array([self.materials[i].is_emitter for i in slots])[np.clip(local.slot, 0, len(slots) - 1)]
-        if emitting.any():
-            self.emitter_parts.append((triangles[emitting], material[emitting]))
+        if emitting.any() and _lobes_reached(obj):  # an emitter reaching no lobe lights nothing
+            self.emitter_parts.append((triangles[emitting], material[emitting], _lobes_reached(obj)))
             self.counts["emitter_triangles"] += int(emitting.sum())
         if getattr(obj, "shadow_terminator_shading_offset", 0.0) > 0.0:
             self.skip("Shadow Terminator Shading Offset is not supported (the Geometry Offset is)", obj.name)
@@ -904,6 +906,8 @@ class _DepsgraphReader:
     def add_light(self, obj, matrix: np.ndarray) -> None:
         light = obj.data
         name = obj.name
+        if not _lobes_reached(obj):  # Ray Visibility: neither Diffuse nor Glossy, as Cycles, lights nothing
+            return
         if light.type in ("POINT", "SPOT", "SUN"):
             self.add_facing_light(obj, matrix)
             return
@@ -943,6 +947,7 @@ class _DepsgraphReader:
         self.light_radiance.append(radiance)
         self.light_shadows.append(bool(light.use_shadow))
         self.light_spreads.append(float(light.spread) if abs(light.spread - math.pi) > 1e-6 else math.pi)
+        self.light_lobes.append(_lobes_reached(obj))
         self.light_names.append(name)
         self.counts["area_lights"] += 1
 
@@ -1013,6 +1018,8 @@ class _DepsgraphReader:
             self.facing.append(lamp)
         if not light.use_shadow:
             self.facing[-1] = self.facing[-1].without_shadows()
+        if _lobes_reached(obj) != LOBES_ALL:
+            self.facing[-1] = self.facing[-1].reaching(_lobes_reached(obj))
         self.facing_names.append(name)
         self.counts[f"{kind}_lights"] = self.counts.get(f"{kind}_lights", 0) + 1
 
@@ -1082,7 +1089,7 @@ class _DepsgraphReader:
             vertex_count[index] = len(polygon)
         area = Lights(vertices, vertex_count, np.reshape(np.array(self.light_radiance, np.float64), (-1, 3)),
                       np.zeros(count, bool), np.array(self.light_shadows, bool),
-                      np.array(self.light_spreads, np.float64))
+                      np.array(self.light_spreads, np.float64), np.array(self.light_lobes, np.int64))
         if not self.emitter_parts:
             return area, EmitterHulls.empty(), names, []
         # One emitter per object instance and material: one radiance, one mesh surface.
@@ -1091,14 +1098,23 @@ class _DepsgraphReader:
         material = np.concatenate([p[1] for p in self.emitter_parts])
         instance = np.repeat(np.arange(len(self.emitter_parts)), [len(p[0]) for p in self.emitter_parts])
         _, part = np.unique(instance * len(self.materials) + material, return_inverse=True)
+        lobes = np.repeat([p[2] for p in self.emitter_parts], [len(p[0]) for p in self.emitter_parts])
         emitters = Lights(triangles, np.full(len(triangles), 3, np.int64), emission[material],
-                          np.ones(len(triangles), bool))
+                          np.ones(len(triangles), bool), lobes=lobes)
         grouped, hulls, light_source, hull_source = group_mesh_emitters(emitters, part.reshape(-1))
         self.counts["emitter_lights"] = len(grouped)
         self.counts["emitter_hulls"] = len(hulls)
         names.extend(self.materials[i].name for i in material[light_source])
         return (Lights.concat([area, grouped]), hulls, names,
                 [self.materials[i].name for i in material[hull_source]])
+
+
+def _lobes_reached(obj) -> int:
+    """The BSDF lobes an emitting object's light reaches (``scene.LOBE_*`` bits): its Ray Visibility >
+    Diffuse and Glossy, which Cycles honours for lights and mesh emitters alike (measured: either off, that
+    lobe gets none of its light)."""
+    return (LOBE_DIFFUSE if getattr(obj, "visible_diffuse", True) else 0) | \
+        (LOBE_GLOSSY if getattr(obj, "visible_glossy", True) else 0)
 
 
 def _geometric_normals(triangles: np.ndarray) -> np.ndarray:

@@ -40,7 +40,7 @@ import numpy as np
 from numba import njit
 
 from .facing import LAMP_AXES
-from .scene import EmitterHulls, Lights
+from .scene import LOBES_ALL, EmitterHulls, Lights
 
 # Kind of a hull's virtual lights in ``LightFrames.kind`` (after the facing kinds 0..2).
 FACING_HULL = 3
@@ -106,10 +106,12 @@ def group_mesh_emitters(lights: Lights, part: np.ndarray) -> tuple[Lights, Emitt
     if polygons:
         merged = Lights.from_polygons(polygons, lights.radiance[polygon_rows], np.ones(len(polygons), bool))
         merged.cast_shadow = np.asarray(lights.cast_shadow, bool)[polygon_rows]
+        merged.lobes = np.asarray(lights.lobes, np.int64)[polygon_rows]
         base = Lights.concat([base, merged])
     hulls = EmitterHulls(np.concatenate(hull_faces) if hull_faces else np.zeros((0, 3, 3)),
                          np.repeat(np.arange(len(hull_faces)), [len(f) for f in hull_faces]),
-                         lights.radiance[hull_rows] if hull_rows else np.zeros((0, 3)))
+                         lights.radiance[hull_rows] if hull_rows else np.zeros((0, 3)),
+                         np.asarray(lights.lobes, np.int64)[hull_rows] if hull_rows else None)
     return base, hulls, np.concatenate([kept, np.array(polygon_rows, np.int64)]), np.array(hull_rows, np.int64)
 
 
@@ -298,12 +300,13 @@ def _silhouette_budget(face_normal: np.ndarray, edge_face: np.ndarray) -> int:
     return int(4 * math.ceil((1.25 * edges.max() + 8) / 4))
 
 
-def hull_frames(tables: HullTables, radiance: np.ndarray) -> dict:
+def hull_frames(tables: HullTables, radiance: np.ndarray, lobes: np.ndarray | None = None) -> dict:
     """The hulls' virtual lights (six per hull, in hull order) as ``facing.facing_frames`` gives a lamp's:
     origin, tangent, bitangent, normal (K, 3); uv (K, W, 2) and vertices (K, W, 3) the square holding every
     receiver's polygon (W = the widest hull's budget); vertex_count (K,) each hull's budget; radiance (K, 3);
     two_sided (K,) False; area (K,); kind FACING_HULL, slot 0..5, source the hull (K,) int64; cap_centre
-    (K, 3), cap_radius (K,); spot_frame, spot_cos_half, spot_smooth; cast_shadow; spread."""
+    (K, 3), cap_radius (K,); spot_frame, spot_cos_half, spot_smooth; cast_shadow; spread; lobes (K,) from the
+    hulls' ``lobes`` (H,) (None: all)."""
     count = len(tables)
     source = np.repeat(np.arange(count), 6)
     slot = np.tile(np.arange(6), count)
@@ -328,7 +331,8 @@ def hull_frames(tables: HullTables, radiance: np.ndarray) -> dict:
                 cap_centre=tables.centre[source], cap_radius=tables.radius[source],
                 spot_frame=np.broadcast_to(np.eye(3), (len(source), 3, 3)).copy(),
                 spot_cos_half=np.full(len(source), -2.0), spot_smooth=np.zeros(len(source)),
-                cast_shadow=np.ones(len(source), bool), spread=np.full(len(source), np.pi))
+                cast_shadow=np.ones(len(source), bool), spread=np.full(len(source), np.pi),
+                lobes=np.full(len(source), LOBES_ALL, np.int64) if lobes is None else np.asarray(lobes, np.int64)[source])
 
 
 def _square_perimeter(points: int) -> np.ndarray:

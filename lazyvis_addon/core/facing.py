@@ -88,7 +88,7 @@ def facing_frames(facing: FacingLights, centre: np.ndarray, extent: float) -> di
     dict of per-frame arrays (K frames): origin, tangent, bitangent, normal (K, 3); uv (K, FACING_VERTICES, 2)
     and vertices (K, FACING_VERTICES, 3) a polygon holding every receiver's; radiance (K, 3); two_sided (K,);
     area (K,) the polygon's; kind, slot, source (K,) int64 (the lamp's plane 0..2, the FacingLights row);
-    cap_centre (K, 3), cap_radius (K,); spot_frame (K, 3, 3), spot_cos_half, spot_smooth (K,); cast_shadow (K,).
+    cap_centre (K, 3), cap_radius (K,); spot_frame (K, 3, 3), spot_cos_half, spot_smooth (K,); cast_shadow, lobes (K,).
     """
     radius = effective_radius(facing, extent)
     radiance = cap_radiance(facing, radius)
@@ -131,7 +131,8 @@ def facing_frames(facing: FacingLights, centre: np.ndarray, extent: float) -> di
                 source=source, cap_centre=np.where(is_sun[:, None], towards[source], facing.centre[source]),
                 cap_radius=radius[source], spot_frame=facing.spot_frame[source],
                 spot_cos_half=facing.spot_cos_half[source], spot_smooth=facing.spot_smooth[source],
-                cast_shadow=facing.cast_shadow[source], spread=np.full(len(source), np.pi))
+                cast_shadow=facing.cast_shadow[source], spread=np.full(len(source), np.pi),
+                lobes=facing.lobes[source])
 
 
 def cap_polygons(frames, light: np.ndarray, position: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

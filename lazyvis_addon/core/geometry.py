@@ -19,7 +19,7 @@ from numba import njit
 
 from .emitters import FACING_HULL, hull_frames, hull_polygons, hull_tables
 from .facing import cap_polygons, facing_frames, spread_lines
-from .scene import Lights
+from .scene import LOBES_ALL, Lights
 
 # Relative tolerance for "on the plane" decisions (angles in radians, distances over lengths).
 PLANE_EPS = 1e-9
@@ -51,6 +51,7 @@ class LightFrames:
     scene_light : (L,) int64     the light of passes and statistics (polygon lights, then facing lights).
     cast_shadow : (L,) bool      False: nothing blocks the light (Cast Shadow off).
     spread : (L,) float64        Cycles' area light Spread, radians (pi: Lambertian; ``Lights.spread``).
+    lobes : (L,) int64           the BSDF lobes the light reaches (``scene.LOBE_DIFFUSE | LOBE_GLOSSY``).
 
     Closed convex mesh emitters (``Scene.hulls``) follow as six virtual lights each, kind FACING_HULL, whose
     polygon is built per receiver too (``emitters.hull_polygons``; ``hulls`` their tables, source the hull).
@@ -77,6 +78,7 @@ class LightFrames:
     scene_light: np.ndarray | None = None
     cast_shadow: np.ndarray | None = None
     spread: np.ndarray | None = None
+    lobes: np.ndarray | None = None
     hulls: object = None
 
     def __post_init__(self) -> None:
@@ -86,7 +88,7 @@ class LightFrames:
                         cap_radius=np.zeros(count), spot_frame=np.broadcast_to(np.eye(3), (count, 3, 3)).copy(),
                         spot_cos_half=np.full(count, -2.0), spot_smooth=np.zeros(count),
                         scene_light=np.arange(count, dtype=np.int64), cast_shadow=np.ones(count, bool),
-                        spread=np.full(count, np.pi))
+                        spread=np.full(count, np.pi), lobes=np.full(count, LOBES_ALL, np.int64))
         for name, value in defaults.items():
             if getattr(self, name) is None:
                 setattr(self, name, value)
@@ -111,7 +113,8 @@ def light_frames(lights: Lights, facing=None, centre: np.ndarray | None = None, 
         frames = _joined(frames, extra, len(lights))
     if hulls is not None and len(hulls):
         tables = hull_tables(hulls)
-        frames = _joined(frames, hull_frames(tables, hulls.radiance), len(lights) + (len(facing) if facing else 0))
+        frames = _joined(frames, hull_frames(tables, hulls.radiance, hulls.lobes),
+                         len(lights) + (len(facing) if facing else 0))
         frames.hulls = tables
     return frames
 
@@ -127,7 +130,8 @@ def _joined(frames: LightFrames, extra: dict, first_scene_light: int) -> LightFr
 
     joined = {}
     for name in ("origin", "tangent", "bitangent", "normal", "radiance", "two_sided", "area", "kind", "slot",
-                 "cap_centre", "cap_radius", "spot_frame", "spot_cos_half", "spot_smooth", "cast_shadow", "spread"):
+                 "cap_centre", "cap_radius", "spot_frame", "spot_cos_half", "spot_smooth", "cast_shadow", "spread",
+                 "lobes"):
         joined[name] = np.concatenate([getattr(frames, name), extra[name]])
     joined["uv"] = np.concatenate([padded(frames.uv, width), padded(extra["uv"], width)])
     joined["vertices"] = np.concatenate([padded(frames.vertices, width), padded(extra["vertices"], width)])
@@ -151,7 +155,8 @@ def _polygon_frames(lights: Lights) -> LightFrames:
     uv = np.stack([np.einsum("lvk,lk->lv", rel, tangent), np.einsum("lvk,lk->lv", rel, bitangent)], axis=-1)
     return LightFrames(origin, tangent, bitangent, normal, uv, vertices, np.asarray(lights.vertex_count),
                        np.asarray(lights.radiance, dtype=np.float64), np.asarray(lights.two_sided, bool), area,
-                       cast_shadow=np.asarray(lights.cast_shadow, bool), spread=np.asarray(lights.spread, np.float64))
+                       cast_shadow=np.asarray(lights.cast_shadow, bool), spread=np.asarray(lights.spread, np.float64),
+                       lobes=np.asarray(lights.lobes, np.int64))
 
 
 def newell_normal(polygons: np.ndarray) -> np.ndarray:

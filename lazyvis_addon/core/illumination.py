@@ -19,6 +19,7 @@ from . import rng
 from .blocker_map import BlockerMap, first_blocker
 from .blockers import BlockerPolygons, silhouette_planes
 from .bsdf import SurfaceBsdf
+from .scene import LOBE_DIFFUSE, LOBE_GLOSSY, LOBES_ALL
 from .emitters import FACING_HULL, taken_hull_planes
 from .facing import direction_mask, direction_spread, spot_factors, spread_factors, taken_planes
 from .geometry import (PLANE_EPS, LightFrames, ReceiverLight, blocker_in_front_of_light, clip_convex, cone_planes,
@@ -652,9 +653,21 @@ def couple_weights(pieces: VisiblePieces, surface: SurfacePoints, frames: LightF
     return weights
 
 
+def lobe_masks(frames: LightFrames, light: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """Per couple of lights ``light`` (Nc,) int64, 1.0 where its light reaches the diffuse lobe, and where
+    it reaches the glossy lobes ((Nc, 1) float64 each, Blender's Ray Visibility of the light's object);
+    None when every light reaches both."""
+    lobes = frames.lobes[light]
+    if (lobes == LOBES_ALL).all():
+        return None
+    return (((lobes & LOBE_DIFFUSE) != 0).astype(np.float64)[:, None],
+            ((lobes & LOBE_GLOSSY) != 0).astype(np.float64)[:, None])
+
+
 def _couple_weights(pieces: VisiblePieces, surface: SurfacePoints, frames: LightFrames, bsdf: SurfaceBsdf,
                     settings: Settings, pixel_global: np.ndarray, more: VisiblePieces | None = None,
                     clamp: bool = True) -> np.ndarray:
+    masks = lobe_masks(frames, pieces.couples.light)
     if more is not None:
         rough = _without_mirrors(bsdf)
         total = np.maximum(_summed_weights(pieces, surface, frames, rough, settings, pixel_global)
@@ -663,18 +676,23 @@ def _couple_weights(pieces: VisiblePieces, surface: SurfacePoints, frames: Light
             uv, count, couple = _concat_pieces((pieces.uv, pieces.count, pieces.couple), (more.uv, more.count, more.couple))
             both = VisiblePieces(pieces.couples, pieces.couple_pixel, uv, count, couple, pieces.max_rounds,
                                  np.concatenate([pieces.sign, more.sign]))
-            total = total + mirror_weights(both, frames, bsdf)
+            mirror = mirror_weights(both, frames, bsdf)
+            total = total + (mirror if masks is None else mirror * masks[1])
         return total
     mirror = mirror_weights(pieces, frames, bsdf) if bsdf.glossy.any() else 0.0
-    if settings.integrator == "reduced_mc":
+    if settings.integrator == "reduced_mc":  # the whole BSDF sampled at once: Ray Visibility is warned about
         return reduced_domain_mc(pieces, surface, frames, bsdf, settings, pixel_global) + mirror
     projected = analytic(pieces, surface, frames, clamp)
-    weights = projected[:, None] * bsdf.diffuse[pieces.couple_pixel] / np.pi + mirror
-    if not bsdf.glossy.any():
-        return weights
-    if settings.glossy_integrator == "mc":
-        return weights + reduced_domain_mc(pieces, surface, frames, bsdf, settings, pixel_global, glossy_only=True)
-    return weights + glossy_analytic(pieces, frames, bsdf, settings.glossy_integrator, clamp)
+    diffuse = projected[:, None] * bsdf.diffuse[pieces.couple_pixel] / np.pi
+    glossy = mirror
+    if bsdf.glossy.any():
+        if settings.glossy_integrator == "mc":
+            glossy = glossy + reduced_domain_mc(pieces, surface, frames, bsdf, settings, pixel_global, glossy_only=True)
+        else:
+            glossy = glossy + glossy_analytic(pieces, frames, bsdf, settings.glossy_integrator, clamp)
+    if masks is None:
+        return diffuse + glossy
+    return diffuse * masks[0] + glossy * masks[1]
 
 
 # Signed terms integrated per array pass: the integrals' temporaries (a few hundred bytes per term and

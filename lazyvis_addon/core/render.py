@@ -30,7 +30,7 @@ from .illumination import (VisiblePieces, couple_weights, couples_for, reflected
 from .silhouettes import MeshEdges, compile_kernels, pixel_batch_for, silhouette_pieces
 from .terminator import terminator_couples
 from .progress import Progress
-from .scene import Scene
+from .scene import LOBES_ALL, Scene
 from .settings import Settings
 from .surface import SurfacePoints, scene_centre, scene_extent, shade_hits
 from .trace import RayTracer
@@ -139,6 +139,9 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
     if not frames.cast_shadow.all() and not settings.uses_silhouettes:
         progress.warn("lights with Cast Shadow off cast shadows with the paper's blocker maps and the Monte Carlo "
                       "integrators; the default silhouettes honour it")
+    if (frames.lobes != LOBES_ALL).any() and settings.integrator in ("reduced_mc", "standard_mc"):
+        progress.warn("lights' Ray Visibility (Diffuse, Glossy) is honoured by the Analytic and Reference "
+                      "integrators; the Monte Carlo integrators light every lobe")
     verify = lazy and settings.verify_rays > 0 and len(frames) > 0
     radiance, pass2_stats, missed = _illuminate(surface, frames, polygons, tracer, blockers, settings, pixel_global,
                                                 progress, scene.materials, verify, edges)

@@ -144,6 +144,9 @@ class Lights:
     spread : (L,) float64 or None
         Cycles' area light Spread (radians, 0..pi): emission towards angle t from the normal is weighted by
         max(tan(s/2) - tan t, 0) / (tan(s/2) - s/2) (``facing.spread_weights``); None or pi: Lambertian.
+    lobes : (L,) int64 or None
+        The BSDF lobes the light reaches, LOBE_DIFFUSE | LOBE_GLOSSY (Blender's Ray Visibility > Diffuse and
+        Glossy of the light's object); None: both.
     """
 
     vertices: np.ndarray
@@ -152,12 +155,14 @@ class Lights:
     two_sided: np.ndarray
     cast_shadow: np.ndarray | None = None
     spread: np.ndarray | None = None
+    lobes: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.cast_shadow is None:
             self.cast_shadow = np.ones(len(self.vertex_count), bool)
         if self.spread is None:
             self.spread = np.full(len(self.vertex_count), np.pi)
+        self.lobes = _lobes(self.lobes, len(self.vertex_count))
 
     @classmethod
     def from_polygons(cls, polygons, radiance, two_sided=None) -> "Lights":
@@ -192,14 +197,29 @@ class Lights:
 
         return cls(np.concatenate([padded(p.vertices) for p in parts]),
                    *(np.concatenate([getattr(p, name) for p in parts])
-                     for name in ("vertex_count", "radiance", "two_sided", "cast_shadow", "spread")))
+                     for name in ("vertex_count", "radiance", "two_sided", "cast_shadow", "spread", "lobes")))
 
     def __len__(self) -> int:
         return len(self.vertex_count)
 
     def subset(self, keep: np.ndarray) -> "Lights":
         return Lights(self.vertices[keep], self.vertex_count[keep], self.radiance[keep], self.two_sided[keep],
-                      self.cast_shadow[keep], self.spread[keep])
+                      self.cast_shadow[keep], self.spread[keep], self.lobes[keep])
+
+
+# The BSDF lobes a light reaches (``Lights.lobes``, ``FacingLights.lobes``, ``EmitterHulls.lobes``): bits.
+LOBE_DIFFUSE, LOBE_GLOSSY = 1, 2
+LOBES_ALL = LOBE_DIFFUSE | LOBE_GLOSSY
+
+
+def _lobes(lobes, count: int) -> np.ndarray:
+    """(count,) int64 lobe bits, LOBES_ALL where None; a ValueError for bits outside LOBES_ALL."""
+    if lobes is None:
+        return np.full(count, LOBES_ALL, np.int64)
+    lobes = np.asarray(lobes, dtype=np.int64).reshape(count)
+    if ((lobes & ~LOBES_ALL) != 0).any() or (lobes < 0).any():
+        raise ValueError(f"light lobes must be bits of {LOBES_ALL} (1 diffuse, 2 glossy)")
+    return lobes
 
 
 # Kinds of ``FacingLights``: how the cap of directions a receiver sees is sized.
@@ -230,6 +250,7 @@ class FacingLights:
     spot_cos_half : (F,)        cos(Spot Size / 2); below -1: no cone (a point lamp or a sun).
     spot_smooth : (F,)          Spot Blend * (1 - cos_half): the width of the mask's smoothstep in cos.
     cast_shadow : (F,) bool     False: nothing blocks the light (Cast Shadow off).
+    lobes : (F,) int64          the BSDF lobes the light reaches (``Lights.lobes``).
     """
 
     kind: np.ndarray
@@ -240,6 +261,7 @@ class FacingLights:
     spot_cos_half: np.ndarray | None = None
     spot_smooth: np.ndarray | None = None
     cast_shadow: np.ndarray | None = None
+    lobes: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.kind = np.asarray(self.kind, dtype=np.int64).reshape(-1)
@@ -255,6 +277,7 @@ class FacingLights:
             np.asarray(self.spot_smooth, dtype=np.float64).reshape(count)
         self.cast_shadow = np.ones(count, bool) if self.cast_shadow is None else \
             np.asarray(self.cast_shadow, dtype=bool).reshape(count)
+        self.lobes = _lobes(self.lobes, count)
 
     @classmethod
     def empty(cls) -> "FacingLights":
@@ -268,12 +291,17 @@ class FacingLights:
         return FacingLights(self.kind, self.centre, self.radius, self.intensity,
                             np.broadcast_to(np.asarray(frame, dtype=np.float64), (count, 3, 3)).copy(),
                             np.full(count, cos_half), np.full(count, min(max(blend, 0.0), 1.0) * (1.0 - cos_half)),
-                            self.cast_shadow)
+                            self.cast_shadow, self.lobes)
 
     def without_shadows(self) -> "FacingLights":
         """These lights with Cast Shadow off."""
         return FacingLights(self.kind, self.centre, self.radius, self.intensity, self.spot_frame, self.spot_cos_half,
-                            self.spot_smooth, np.zeros(len(self), bool))
+                            self.spot_smooth, np.zeros(len(self), bool), self.lobes)
+
+    def reaching(self, lobes: int) -> "FacingLights":
+        """These lights reaching only the BSDF lobes ``lobes`` (LOBE_* bits)."""
+        return FacingLights(self.kind, self.centre, self.radius, self.intensity, self.spot_frame, self.spot_cos_half,
+                            self.spot_smooth, self.cast_shadow, np.full(len(self), lobes, np.int64))
 
     @classmethod
     def point(cls, centre, radius: float, intensity, soft_falloff: bool = True) -> "FacingLights":
@@ -293,7 +321,7 @@ class FacingLights:
             return cls.empty()
         return cls(*(np.concatenate([getattr(p, name) for p in parts]) for name in
                      ("kind", "centre", "radius", "intensity", "spot_frame", "spot_cos_half", "spot_smooth",
-                      "cast_shadow")))
+                      "cast_shadow", "lobes")))
 
     def __len__(self) -> int:
         return len(self.kind)
@@ -301,7 +329,7 @@ class FacingLights:
     def subset(self, keep: np.ndarray) -> "FacingLights":
         return FacingLights(self.kind[keep], self.centre[keep], self.radius[keep], self.intensity[keep],
                             self.spot_frame[keep], self.spot_cos_half[keep], self.spot_smooth[keep],
-                            self.cast_shadow[keep])
+                            self.cast_shadow[keep], self.lobes[keep])
 
 
 @dataclass
@@ -318,16 +346,19 @@ class EmitterHulls:
     triangles : (K, 3, 3) float64   the emitters' faces (world space, m), wound outward.
     hull : (K,) int64               the emitter (row) of each face, ascending.
     radiance : (H, 3) float64       each emitter's radiance, W m^-2 sr^-1 per colour channel.
+    lobes : (H,) int64              the BSDF lobes each reaches (``Lights.lobes``); None: both.
     """
 
     triangles: np.ndarray
     hull: np.ndarray
     radiance: np.ndarray
+    lobes: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.triangles = np.asarray(self.triangles, dtype=np.float64).reshape(-1, 3, 3)
         self.hull = np.asarray(self.hull, dtype=np.int64).reshape(-1)
         self.radiance = np.asarray(self.radiance, dtype=np.float64).reshape(-1, 3)
+        self.lobes = _lobes(self.lobes, len(self.radiance))
 
     @classmethod
     def empty(cls) -> "EmitterHulls":
@@ -345,7 +376,7 @@ class EmitterHulls:
         keep = np.asarray(keep, bool)
         renumber = np.cumsum(keep) - 1
         faces = keep[self.hull]
-        return EmitterHulls(self.triangles[faces], renumber[self.hull[faces]], self.radiance[keep])
+        return EmitterHulls(self.triangles[faces], renumber[self.hull[faces]], self.radiance[keep], self.lobes[keep])
 
 
 @dataclass
@@ -591,7 +622,7 @@ class Scene:
                for name, value in self.materials.arrays().items()},
             light_vertices=self.lights.vertices, light_vertex_count=self.lights.vertex_count,
             light_radiance=self.lights.radiance, light_two_sided=self.lights.two_sided,
-            light_cast_shadow=self.lights.cast_shadow, light_spread=self.lights.spread,
+            light_cast_shadow=self.lights.cast_shadow, light_spread=self.lights.spread, light_lobes=self.lights.lobes,
             world_from_camera=camera.world_from_camera, resolution=np.array([camera.width, camera.height]),
             projection=np.array(camera.projection), screen_window=camera.screen_window,
             window=np.array(camera.window), background=self.background,
@@ -607,7 +638,7 @@ class Scene:
                 arrays["facing_" + name] = getattr(self.facing, name)
         if len(self.hulls):
             arrays.update(hull_triangles=self.hulls.triangles, hull_index=self.hulls.hull,
-                          hull_radiance=self.hulls.radiance)
+                          hull_radiance=self.hulls.radiance, hull_lobes=self.hulls.lobes)
         for index, texture in enumerate(self.textures):
             arrays[f"texture_{index}_texels"] = texture.texels
             arrays[f"texture_{index}_options"] = np.array([str(int(texture.srgb)), texture.interpolation,
@@ -636,7 +667,8 @@ class Scene:
                             np.array(data["light_two_sided"], bool) if "light_two_sided" in data
                             else np.zeros(count, bool),
                             np.array(data["light_cast_shadow"], bool) if "light_cast_shadow" in data else None,
-                            np.array(data["light_spread"], np.float64) if "light_spread" in data else None)
+                            np.array(data["light_spread"], np.float64) if "light_spread" in data else None,
+                            np.array(data["light_lobes"], np.int64) if "light_lobes" in data else None)
             textures = []
             while f"texture_{len(textures)}_texels" in data:
                 srgb, interpolation, extension = (str(v) for v in data[f"texture_{len(textures)}_options"])
@@ -657,12 +689,13 @@ class Scene:
                                       for name in FACING_ARRAYS))
                        if "facing_kind" in data else FacingLights.empty(),
                        EmitterHulls(np.array(data["hull_triangles"]), np.array(data["hull_index"]),
-                                    np.array(data["hull_radiance"]))
+                                    np.array(data["hull_radiance"]),
+                                    np.array(data["hull_lobes"]) if "hull_lobes" in data else None)
                        if "hull_radiance" in data else EmitterHulls.empty())
 
 
 FACING_ARRAYS = ("kind", "centre", "radius", "intensity", "spot_frame", "spot_cos_half", "spot_smooth",
-                 "cast_shadow")
+                 "cast_shadow", "lobes")
 
 
 def _validated_facing(facing: FacingLights, progress: Progress) -> FacingLights:
@@ -743,4 +776,5 @@ def _validated_lights(lights: Lights, progress: Progress) -> Lights:
         raise ValueError("light polygons must be convex")
     two_sided = np.asarray(lights.two_sided, bool)[keep]
     spread = np.clip(np.asarray(lights.spread, dtype=np.float64).reshape(-1), 0.0, np.pi)
-    return Lights(vertices, vertex_count, radiance, two_sided, np.asarray(lights.cast_shadow, bool)[keep], spread[keep])
+    return Lights(vertices, vertex_count, radiance, two_sided, np.asarray(lights.cast_shadow, bool)[keep], spread[keep],
+                  np.asarray(lights.lobes, np.int64)[keep])

@@ -146,6 +146,39 @@ def glossy_floor(scene, roughness: float) -> None:
                    size=1.5, size_y=0.6, energy=150.0)
 
 
+def ray_visibility(scene) -> None:
+    """Issue 14: lights' Ray Visibility and a Blackbody colour. A glossy Principled floor (roughness 0.3) and
+    a diffuse box: a rectangle light whose reflection the camera sees in the floor reaching only glossy
+    lobes (Diffuse off), a square light above reaching only the diffuse lobe (Glossy off), a point lamp
+    reaching only glossy lobes, and an emissive panel coloured by a Blackbody node at 2200 K reaching only
+    the diffuse lobe. Tested with glossy Monte Carlo, as the glossy_* cases (LTC's shape error is issue 16's;
+    a spot's cone on glossy lobes takes the diffuse lobe's ratio, so there is none here)."""
+    add_camera(scene, location=(0.0, -4.2, 2.2), rotation=(math.radians(66.25), 0.0, 0.0), lens=40.0)
+    bpy.ops.mesh.primitive_plane_add(size=8.0)
+    assign(bpy.context.object, node_material("Floor", "ShaderNodeBsdfPrincipled", Base_Color=(0.5, 0.5, 0.5),
+                                             Roughness=0.3, IOR=1.5, Specular_IOR_Level=0.5))
+    bpy.ops.mesh.primitive_cube_add(size=0.6, location=(-0.6, 0.4, 0.3), rotation=(0.0, 0.0, 0.5))
+    assign(bpy.context.object, node_material("Box", Color=(0.7, 0.4, 0.3)))
+    glossy_only = add_area_light(location=(0.0, 3.5, 2.0), rotation=(math.radians(-30.0), 0.0, 0.0),
+                                 shape="RECTANGLE", size=1.5, size_y=0.6, energy=150.0)
+    glossy_only.visible_diffuse = False
+    diffuse_only = add_area_light(location=(0.8, 0.2, 2.4), rotation=(0.2, 0.3, 0.0), shape="SQUARE", size=0.8,
+                                  energy=120.0, color=(0.8, 0.9, 1.0))
+    diffuse_only.visible_glossy = False
+    lamp = add_light("POINT", location=(-1.2, 2.4, 1.6), energy=60.0, shadow_soft_size=0.15)
+    lamp.visible_diffuse = False
+    bpy.ops.mesh.primitive_plane_add(size=0.6, location=(1.4, 1.2, 0.9), rotation=(math.radians(75), 0.0, -0.5))
+    panel = bpy.context.object
+    material = node_material("Ember", "ShaderNodeEmission", Strength=8.0)
+    tree = material.node_tree
+    blackbody = tree.nodes.new("ShaderNodeBlackbody")
+    blackbody.inputs["Temperature"].default_value = 2200.0
+    tree.links.new(blackbody.outputs[0], next(n for n in tree.nodes if n.bl_idname == "ShaderNodeEmission")
+                   .inputs["Color"])
+    assign(panel, material)
+    panel.visible_glossy = False
+
+
 def lamps_and_boxes(scene) -> None:
     """Issue 14: boxes on a floor under two point lamps (Soft Falloff on, the disk; off, the sphere, with
     Cast Shadow off) and a spot (rotated, a soft blend), with a Principled box at Specular IOR Level 0."""
@@ -289,6 +322,7 @@ CASES = (
     Case("emitter_added", (64, 48), build=emitter_added),
     Case("spread_lights", (64, 48), build=spread_lights),
     Case("mesh_emitters", (64, 48), build=mesh_emitters),
+    Case("ray_visibility", (64, 48), build=ray_visibility),
     Case("room_matte", (96, 72), blend="sample_blends/room.blend", prepare=matte),
     # Issue 5: Blender's default pixel filter, LazyVis anti-aliasing with its defaults.
     Case("floating_boxes_filter1.5", (96, 96), blend="sample_blends/floating_boxes.blend", filter_width=DEFAULT_FILTER),

@@ -1011,6 +1011,33 @@ def test_ray_visibility_warns_and_cast_shadow_is_exported(scene):
     np.testing.assert_array_equal(exported.scene.facing.cast_shadow, [False])
 
 
+def test_lights_ray_visibility_diffuse_and_glossy_is_exported_per_light(scene):
+    """Issue 14: Object > Visibility > Ray Visibility > Diffuse and Glossy of area, point and sun lights and
+    of emitting meshes become the lobes each reaches (measured in Cycles 5.0.1: either off, that lobe gets
+    none of the light); both off, the light lights nothing and is left out, an emitter still shows."""
+    from lazyvis_addon.core.scene import LOBE_DIFFUSE, LOBE_GLOSSY, LOBES_ALL
+    add_camera(scene)
+    add_area_light(name="Both", size=1.0, energy=10.0)
+    add_area_light(name="Glossy only", size=1.0, energy=10.0).visible_diffuse = False
+    none = add_area_light(name="Neither", size=1.0, energy=10.0)
+    none.visible_diffuse = none.visible_glossy = False
+    add_light("POINT", energy=10.0).visible_glossy = False
+    add_light("SUN", energy=2.0)
+    bpy.ops.mesh.primitive_plane_add(size=1.0, location=(0.0, 0.0, 2.0))
+    panel = bpy.context.object
+    assign(panel, node_material("Glow", "ShaderNodeEmission", Strength=5.0))
+    panel.visible_diffuse = False
+    exported, warnings = export(scene)
+    assert "Neither" not in exported.light_names and "Glow" in exported.light_names
+    np.testing.assert_array_equal(exported.scene.lights.lobes, [LOBES_ALL, LOBE_GLOSSY, LOBE_GLOSSY])
+    np.testing.assert_array_equal(exported.scene.facing.lobes, [LOBE_DIFFUSE, LOBES_ALL])
+    panel.visible_glossy = False
+    dark, _ = export(scene)
+    assert "Glow" not in dark.light_names and len(dark.scene.lights) == 2
+    assert (dark.scene.materials.emission > 0).any()  # the panel is still seen, emitting
+    assert not any("Ray Visibility" in w for w in warnings)
+
+
 def test_panoramic_camera_is_a_clear_error(scene):
     add_camera(scene, type="PANO")
     with pytest.raises(ValueError, match="perspective and orthographic cameras only"):
