@@ -111,6 +111,17 @@ def _on_arc(point, start, end, normal, slack):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _one_side(c0, c1, c2, margin, start, end, j, length_start, length_end):
+    """Both ends of arc j lie on one side of the plane of normal (c0, c1, c2), farther from it than
+    ``margin`` times their lengths (for a unit direction and margin * |c| that is about an angle), as a
+    branch-free bool."""
+    at_start = c0 * start[j, 0] + c1 * start[j, 1] + c2 * start[j, 2]
+    at_end = c0 * end[j, 0] + c1 * end[j, 1] + c2 * end[j, 2]
+    reach_start, reach_end = margin * length_start, margin * length_end
+    return ((at_start > reach_start) & (at_end > reach_end)) | ((at_start < -reach_start) & (at_end < -reach_end))
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _straddles(va, vb):
     return (va < 0.0 and vb > 0.0) or (va > 0.0 and vb < 0.0)
 
@@ -144,10 +155,7 @@ def _split(seg_start, seg_end, first, n, start, end, normal, lengths, skip, spli
         y = normal[j, 0] * b0 + normal[j, 1] * b1 + normal[j, 2] * b2
         va[jj] = x
         vb[jj] = y
-        at_start = c0 * start[j, 0] + c1 * start[j, 1] + c2 * start[j, 2]
-        at_end = c0 * end[j, 0] + c1 * end[j, 1] + c2 * end[j, 2]
-        reach_start, reach_end = margin * lengths[jj, 0], margin * lengths[jj, 1]
-        apart = ((at_start > reach_start) & (at_end > reach_end)) | ((at_start < -reach_start) & (at_end < -reach_end))
+        apart = _one_side(c0, c1, c2, margin, start, end, j, lengths[jj, 0], lengths[jj, 1])
         candidates[crossing] = jj
         crossing += ((x < 0.0) ^ (y < 0.0)) & (x != 0.0) & (y != 0.0) & (j != skip) & ~apart
     for c in range(crossing):
@@ -189,10 +197,7 @@ def _near_depth(seg_start, seg_end, t_mid, own, first, n, start, end, normal, le
         j = first + jj
         origin_value = ref_value[jj]
         value = (1.0 - t_mid) * va[jj] + t_mid * vb[jj]
-        at_start = c0 * start[j, 0] + c1 * start[j, 1] + c2 * start[j, 2]
-        at_end = c0 * end[j, 0] + c1 * end[j, 1] + c2 * end[j, 2]
-        reach_start, reach_end = margin * lengths[jj, 0], margin * lengths[jj, 1]
-        apart = ((at_start > reach_start) & (at_end > reach_end)) | ((at_start < -reach_start) & (at_end < -reach_end))
+        apart = _one_side(c0, c1, c2, margin, start, end, j, lengths[jj, 0], lengths[jj, 1])
         candidates[crossing] = jj
         crossing += ((origin_value < 0.0) ^ (value < 0.0)) & (origin_value != 0.0) & (value != 0.0) & \
             (j != own) & ~apart
