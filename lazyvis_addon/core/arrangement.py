@@ -40,6 +40,12 @@ CLEAN_ANGLE = 1e-9
 # midpoint does not cross the arc between them: far above rounding, so the exact test would agree.
 APART_ROUNDING = 1e-12
 
+# An arc entering the light across an edge takes its first piece's depth from the edge (see ``_fans``) when
+# the crossing is where its range in the cone starts (as directions within SEED_MATCH) and no other
+# crossing lies within SEED_GAP of it along the edge (in the edge's parameter).
+SEED_MATCH = 1e-9
+SEED_GAP = 1e-6
+
 
 def visible_fans(arcs, light_dirs: np.ndarray, light_count: np.ndarray, reference: np.ndarray,
                  depth: np.ndarray):
@@ -119,6 +125,26 @@ def _one_side(c0, c1, c2, margin, start, end, j, length_start, length_end):
     at_end = c0 * end[j, 0] + c1 * end[j, 1] + c2 * end[j, 2]
     reach_start, reach_end = margin * length_start, margin * length_end
     return ((at_start > reach_start) & (at_end > reach_end)) | ((at_start < -reach_start) & (at_end < -reach_end))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _at_entry(seg_start, seg_end, t, start, end, enter):
+    """The point at ``t`` of the light edge seg_start -> seg_end is, as a direction, the point at ``enter`` of
+    the arc start -> end (within SEED_MATCH): the crossing is where the arc enters the light."""
+    p0, p1, p2 = 0.0, 0.0, 0.0
+    a0, a1, a2 = 0.0, 0.0, 0.0
+    p0 = seg_start[0] + t * (seg_end[0] - seg_start[0])
+    p1 = seg_start[1] + t * (seg_end[1] - seg_start[1])
+    p2 = seg_start[2] + t * (seg_end[2] - seg_start[2])
+    a0 = start[0] + enter * (end[0] - start[0])
+    a1 = start[1] + enter * (end[1] - start[1])
+    a2 = start[2] + enter * (end[2] - start[2])
+    lp = np.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
+    la = np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+    if not (lp > 0.0 and la > 0.0):
+        return False
+    d0, d1, d2 = p0 / lp - a0 / la, p1 / lp - a1 / la, p2 / lp - a2 / la
+    return d0 * d0 + d1 * d1 + d2 * d2 < SEED_MATCH * SEED_MATCH
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -297,10 +323,13 @@ def _fans(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_dirs
     candidates = np.empty(most + 1, np.int64)
     edge_pieces = np.empty((width * (most + 1), 2, 3))
     edge_seen = np.empty(width * (most + 1), np.bool_)
+    seed = np.empty(most, np.int64)
+    seeded = np.empty(most, np.bool_)
     for c in range(n_couples):
         n, first = arcs_of[c], first_arc[c]
         ref = reference[c]
         for j in range(n):
+            seeded[j] = False
             ref_value[j] = _dot(normal[first + j], ref)
             lengths[j, 0], lengths[j, 1] = _norm(start[first + j]), _norm(end[first + j])
             lengths[j, 2] = _norm(normal[first + j])
@@ -321,8 +350,18 @@ def _fans(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_dirs
             for q in range(cuts - 1):
                 t0, t1 = splits[q], splits[q + 1]
                 if q > 0:
+                    d_before, known_before = d_near, known
                     d_near, known = _step_depth(d_near, known, q, splits, split_arc, split_clean, first, jump,
                                                 ref_value, va)
+                    j = split_arc[q]
+                    # Where an arc enters the light across this edge, alone (no other crossing within
+                    # SEED_GAP), the edge piece on R's side of it gives the depth of the arc's first piece
+                    # on R's side: the arc's own walk from R (_near_depth) is not needed.
+                    if known_before and known and enter[j] > 0.0 and t0 - splits[q - 1] > SEED_GAP and \
+                            t1 - t0 > SEED_GAP and _at_entry(seg_start, seg_end, t0, start[j], end[j], enter[j]):
+                        on_reference_side = (va[j - first] > 0.0) == (ref_value[j - first] > 0.0)
+                        seed[j - first] = d_before if on_reference_side else d_near
+                        seeded[j - first] = True
                 if not t1 > t0 + MIN_PIECE:
                     continue
                 if not known:
@@ -348,8 +387,11 @@ def _fans(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_dirs
             d_near, known = 0, False
             for q in range(cuts - 1):
                 t0, t1 = splits[q], splits[q + 1]
-                d_near, known = _step_depth(d_near, known, q, splits, split_arc, split_clean, first, jump, ref_value,
-                                            va)
+                if q == 0 and seeded[i - first]:  # the first piece, from where the arc enters the light
+                    d_near, known = seed[i - first], True
+                else:
+                    d_near, known = _step_depth(d_near, known, q, splits, split_arc, split_clean, first, jump,
+                                                ref_value, va)
                 if not t1 > t0 + MIN_PIECE:
                     continue
                 if not known:
