@@ -220,6 +220,29 @@ def test_arrangement_kernel_on_hand_made_arcs():
     assert inconsistent == 0 and not whole[2]
 
 
+def test_arcs_entering_across_a_light_edge_take_the_depth_beside_them():
+    """An arc entering the light across an edge takes its first piece's depth from the edge piece on R's
+    side of it (not a walk from R): square light [-1, 1]^2 on z = 1, R at (0.3, 0.4) inside one layer
+    (D(R) = 1). Couple 0: an arc along y = 0 leaving that layer (jump -1 away from R): the lower half is
+    visible, area 2. Couple 1: also an arc along x = 0.5 adding a layer beyond it (+1): only x < 0.5, y < 0
+    is visible, area 1.5. Taking the edge piece on the wrong side of an arc would flip which half is seen."""
+    from lazyvis_addon.core.arrangement import visible_fans
+    square = np.array([[-1.0, -1.0, 1.0], [1.0, -1.0, 1.0], [1.0, 1.0, 1.0], [-1.0, 1.0, 1.0]])
+    light_dirs = np.repeat(square[None], 2, axis=0)
+    reference = np.repeat([[0.3, 0.4, 1.0]], 2, axis=0)
+    rows = [(0, (-2.0, 0.0, 1.0), (2.0, 0.0, 1.0), -1), (1, (-2.0, 0.0, 1.0), (2.0, 0.0, 1.0), -1),
+            (1, (0.5, -2.0, 1.0), (0.5, 2.0, 1.0), 1)]
+    a = np.array([r[1] for r in rows])
+    b = np.array([r[2] for r in rows])
+    arcs = silhouettes.Arcs(np.array([r[0] for r in rows]), a, b, np.cross(a, b), np.full(3, 0.25),
+                            np.full(3, 0.75), np.array([r[3] for r in rows]))
+    couple, start, end, sign, whole, inconsistent = visible_fans(arcs, light_dirs, np.full(2, 4), reference,
+                                                                 np.ones(2, np.int64))
+    area = fan_area(couple, start, end, sign, reference, 2) + 4.0 * whole
+    np.testing.assert_allclose(area, [2.0, 1.5], atol=1e-12)
+    assert inconsistent == 0
+
+
 def test_arcs_through_the_lights_corners():
     """The depth inside the light carries from one light edge to the next over their shared vertex, except
     where an arc passes through that vertex: square light [-1, 1]^2 on z = 1, R at (-0.3, 0.4). Couple 0:
