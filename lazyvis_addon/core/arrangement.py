@@ -131,8 +131,6 @@ def _one_side(c0, c1, c2, margin, start, end, j, length_start, length_end):
 def _at_entry(seg_start, seg_end, t, start, end, enter):
     """The point at ``t`` of the light edge seg_start -> seg_end is, as a direction, the point at ``enter`` of
     the arc start -> end (within SEED_MATCH): the crossing is where the arc enters the light."""
-    p0, p1, p2 = 0.0, 0.0, 0.0
-    a0, a1, a2 = 0.0, 0.0, 0.0
     p0 = seg_start[0] + t * (seg_end[0] - seg_start[0])
     p1 = seg_start[1] + t * (seg_end[1] - seg_start[1])
     p2 = seg_start[2] + t * (seg_end[2] - seg_start[2])
@@ -357,7 +355,7 @@ def _fans(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_dirs
                     # Where an arc enters the light across this edge, alone (no other crossing within
                     # SEED_GAP), the edge piece on R's side of it gives the depth of the arc's first piece
                     # on R's side: the arc's own walk from R (_near_depth) is not needed.
-                    if known_before and known and enter[j] > 0.0 and t0 - splits[q - 1] > SEED_GAP and \
+                    if known_before and known and j >= 0 and enter[j] > 0.0 and t0 - splits[q - 1] > SEED_GAP and \
                             t1 - t0 > SEED_GAP and _at_entry(seg_start, seg_end, t0, start[j], end[j], enter[j]):
                         on_reference_side = (va[j - first] > 0.0) == (ref_value[j - first] > 0.0)
                         seed[j - first] = d_before if on_reference_side else d_near
@@ -395,8 +393,8 @@ def _fans(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_dirs
                 if not t1 > t0 + MIN_PIECE:
                     continue
                 if not known:
-                    d_near = _near_depth(start[i], end[i], 0.5 * (t0 + t1), i, first, n, start, end, normal, lengths, jump,
-                                         ref, ref_value, depth[c], va, vb, mid, point, candidates)
+                    d_near = _near_depth(start[i], end[i], 0.5 * (t0 + t1), i, first, n, start, end, normal, lengths,
+                                         jump, ref, ref_value, depth[c], va, vb, mid, point, candidates)
                     known = True
                 d_far = d_near + jump[i]
                 low = min(low, min(d_near, d_far))

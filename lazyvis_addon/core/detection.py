@@ -229,9 +229,9 @@ def _detect(node_low, node_high, node_axis, node_spread, node_lights, lights_see
                         couple = couple_rows[c]
                         total = jump_at(couple, r, edge_start, third, triangle, record_light, face_normal,
                                         face_offset, face_size)
-                        if total != 0.0 and arc_test(couple, cone[c], cone_valid[c], r, total, cut, edge_start, edge_end,
-                                                     scratch, out_start, out_end, out_normal, out_enter, out_leave,
-                                                     out_jump, m):
+                        if total != 0.0 and arc_test(couple, cone[c], cone_valid[c], r, total, cut, edge_start,
+                                                     edge_end, scratch, out_start, out_end, out_normal, out_enter,
+                                                     out_leave, out_jump, m):
                             out_couple[m] = c
                             m += 1
     return out_couple, out_start, out_end, out_normal, out_enter, out_leave, out_jump, len(hulls), m, tests, visits

@@ -332,7 +332,8 @@ def hull_frames(tables: HullTables, radiance: np.ndarray, lobes: np.ndarray | No
                 spot_frame=np.broadcast_to(np.eye(3), (len(source), 3, 3)).copy(),
                 spot_cos_half=np.full(len(source), -2.0), spot_smooth=np.zeros(len(source)),
                 cast_shadow=np.ones(len(source), bool), spread=np.full(len(source), np.pi),
-                lobes=np.full(len(source), LOBES_ALL, np.int64) if lobes is None else np.asarray(lobes, np.int64)[source])
+                lobes=np.full(len(source), LOBES_ALL, np.int64) if lobes is None
+                else np.asarray(lobes, np.int64)[source])
 
 
 def _square_perimeter(points: int) -> np.ndarray:
