@@ -323,6 +323,8 @@ CASES = (
     Case("spread_lights", (64, 48), build=spread_lights),
     Case("mesh_emitters", (64, 48), build=mesh_emitters),
     Case("ray_visibility", (64, 48), build=ray_visibility),
+    # The same at LazyVis' defaults with the floor matte: the glossy-only lights then light nothing.
+    Case("ray_visibility_matte", (64, 48), build=ray_visibility, prepare=matte),
     Case("room_matte", (96, 72), blend="sample_blends/room.blend", prepare=matte),
     # Issue 5: Blender's default pixel filter, LazyVis anti-aliasing with its defaults.
     Case("floating_boxes_filter1.5", (96, 96), blend="sample_blends/floating_boxes.blend", filter_width=DEFAULT_FILTER),
