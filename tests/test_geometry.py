@@ -165,3 +165,11 @@ def test_horizon_clipping_equals_clipping_by_each_line():
     for lean, kept in ((0.0, 5), (-10.0, 0)):
         lines = np.array([[[0.0, 1.0, lean * 1e-18], [0.0, 0.0, 1.0]]])  # y >= 0; always true
         assert clip_by_lines(flat, np.array([5]), lines)[1][0] == kept
+
+
+def test_polygon_bounds_are_the_per_coordinate_min_and_max():
+    from lazyvis_addon.core.geometry import polygon_bounds
+    uv = np.random.default_rng(3).normal(size=(50, 7, 2))
+    low, high = polygon_bounds(uv)
+    np.testing.assert_array_equal(low, uv.min(axis=1))
+    np.testing.assert_array_equal(high, uv.max(axis=1))

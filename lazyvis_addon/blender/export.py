@@ -857,8 +857,9 @@ class _DepsgraphReader:
         # Emitting triangles are both geometry (seen by the camera, blocking other lights, as in Cycles)
         # and two-sided triangle lights.
         emitting = np.array([self.materials[i].is_emitter for i in slots])[np.clip(local.slot, 0, len(slots) - 1)]
-        if emitting.any() and _lobes_reached(obj):  # an emitter reaching no lobe lights nothing
-            self.emitter_parts.append((triangles[emitting], material[emitting], _lobes_reached(obj)))
+        lobes = _lobes_reached(obj)
+        if emitting.any() and lobes:  # an emitter reaching no lobe lights nothing
+            self.emitter_parts.append((triangles[emitting], material[emitting], lobes))
             self.counts["emitter_triangles"] += int(emitting.sum())
         if getattr(obj, "shadow_terminator_shading_offset", 0.0) > 0.0:
             self.skip("Shadow Terminator Shading Offset is not supported (the Geometry Offset is)", obj.name)
@@ -1018,8 +1019,9 @@ class _DepsgraphReader:
             self.facing.append(lamp)
         if not light.use_shadow:
             self.facing[-1] = self.facing[-1].without_shadows()
-        if _lobes_reached(obj) != LOBES_ALL:
-            self.facing[-1] = self.facing[-1].reaching(_lobes_reached(obj))
+        lobes = _lobes_reached(obj)
+        if lobes != LOBES_ALL:
+            self.facing[-1] = self.facing[-1].reaching(lobes)
         self.facing_names.append(name)
         self.counts[f"{kind}_lights"] = self.counts.get(f"{kind}_lights", 0) + 1
 

@@ -298,8 +298,9 @@ def trim(points: np.ndarray, count: np.ndarray) -> np.ndarray:
 def polygon_bounds(uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per polygon of (N, V, 2) float64 points (padding repeating a real vertex), the low and high corners
     (N, 2) of its bounding rectangle. Reduced per coordinate over a flat row: numpy's min over the middle
-    axis of (N, V, 2) runs an inner loop of length 2 and took nine times as long (1.7 s of Suzanne's 10 s
-    at 512 px on one thread)."""
+    axis of (N, V, 2) runs an inner loop of length 2, nine times as slow on (100000, 36, 2) (a profile of
+    Suzanne at 512 px on one thread put 2.0 s in reductions before, 0.4 s after; whole renders did not
+    move beyond the machine's noise)."""
     flat = uv.reshape(len(uv), -1)
     low = np.stack([flat[:, 0::2].min(axis=1), flat[:, 1::2].min(axis=1)], axis=1)
     high = np.stack([flat[:, 0::2].max(axis=1), flat[:, 1::2].max(axis=1)], axis=1)

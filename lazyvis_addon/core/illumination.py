@@ -19,7 +19,6 @@ from . import rng
 from .blocker_map import BlockerMap, first_blocker
 from .blockers import BlockerPolygons, silhouette_planes
 from .bsdf import SurfaceBsdf
-from .scene import LOBE_DIFFUSE, LOBE_GLOSSY, LOBES_ALL
 from .emitters import FACING_HULL, taken_hull_planes
 from .facing import direction_mask, direction_spread, spot_factors, spread_factors, taken_planes
 from .geometry import (PLANE_EPS, LightFrames, ReceiverLight, blocker_in_front_of_light, clip_convex, cone_planes,
@@ -29,6 +28,7 @@ from .ggx import ROUGHNESS_SQ_THRESHOLD, alpha_from_roughness, ggx_reflection_pd
 from .ltc import ltc_shape_integral
 from .phong import phong_exponent_from_roughness, phong_polygon_integral
 from .sampling import sample_polygon_solid_angle, sample_spherical_triangle, spherical_triangle_solid_angle
+from .scene import LOBE_DIFFUSE, LOBE_GLOSSY, LOBES_ALL
 from .settings import Settings
 from .surface import SurfacePoints, shadow_rays
 
