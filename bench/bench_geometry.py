@@ -12,8 +12,9 @@ Per .blend and width (the height follows the .blend's aspect), measured:
   ``--repeats``), seconds per stage, the stats counters, and the PROCESS peak memory (ru_maxrss: the
   largest of this render and all before it; every full-frame LazyVis render runs before any other).
 - error: relative RMSE of RGB (RMSE / RMS of the reference) against ``integrator="reference"`` (every
-  triangle a candidate blocker) with the same settings. Above ``--reference-max-pixels`` both render a
-  centred window of at most that many pixels instead (the full-frame time above stays the full frame's).
+  triangle a candidate blocker) with the same settings. Above ``--reference-max-pixels`` (default 64) both
+  render a window of at most that many pixels instead, centred or moved along the diagonal until it sees
+  light (the full-frame time above stays the full frame's).
 - Cycles, in this process through bpy, direct light only (tools/make_cycles_reference.py's
   ``configure_cycles``, the .blend's pixel filter), on the same window at each ``--cycles-samples``:
   time and error against the reference image; fits error = c / sqrt(samples) (log space) and

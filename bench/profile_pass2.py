@@ -5,8 +5,9 @@ thread under cProfile (issue 13's and issue 15's speed work start here).
 
 Per .blend, exported at ``--width`` pixels with the settings the engine would use, a warm-up render and then
 one profiled render with ``threads=1``: on the thread pool the profiler sees only the main thread waiting on
-its workers. The kernels release the GIL and the batches run side by side, so the whole render on N cores
-takes about the one-thread time / N (the tree at 512 px, 2 cores: 42.5 s on one thread, 23 s on two).
+its workers. The compiled kernels release the GIL and run side by side on the pool, the numpy calls between
+them mostly do not: a render whose time is in the kernels gains from more cores, one whose time is in numpy
+barely does (at 512 px on 2 cores: the tree 42.5 s on one thread, 23-25 s on two; the boxes 4.5 s, 4.3 s).
 Prints each render's stage seconds, then the ``--top`` functions by time spent in them (self time).
 """
 
