@@ -149,7 +149,8 @@ def test_probe_rays_outvote_a_miscounted_reference_ray_in_two_rounds(monkeypatch
 
 def test_foliage_cells_and_buffers_change_nothing(monkeypatch):
     """Many leaves over a floor: couples crossed by many arcs are cut into cells, each with its own
-    reference depth; cells, no cells and chunks of a query or two (detection's buffer outgrown again and
+    reference point, whose depth is carried from the couple's across the arcs between (a wrong carry
+    fails here); cells, no cells and chunks of a query or two (detection's buffer outgrown again and
     again, each walk going on in a new buffer from the query it was in) give the same image, the
     reference's."""
     scene = plane_under_light(resolution=12, blocker=leaves(150, seed=3))

@@ -8,7 +8,9 @@ its (u, v) box, with its own reference point, and gets the arcs that cross its c
 chunk of couples come out in couple order (a couple's light, or its non-empty cells one after another),
 and their arcs in region order, from one compiled pass over the couples' arcs: a couple's arcs are
 copied, or each is tested against the cells its (u, v) extent spans, counted and placed by cell, its jump
-turned where the cell's reference point lies on the other side of it than the couple's.
+turned where the cell's reference point lies on the other side of it than the couple's. The same pass
+carries the couple's reference depth D(R) to each cell's reference point across the arcs between (from
+cell to neighbouring cell), so a cell costs no depth ray.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import numpy as np
 from numba import njit
 
 from .arcs import Arcs, _cone_range, cone_of_light
+from .arrangement import _on_arc
 from .geometry import LightFrames, ReceiverLight, clip_by_lines, pad_to, reference_points, trim
 
 # A couple crossed by more arcs than this is cut into a grid of cells of about CELL_TARGET arcs each (at
@@ -44,7 +47,8 @@ def couple_regions(couples: ReceiverLight, frames: LightFrames, arcs: Arcs, orde
     -------
     region_couple (R,) int64, region_uv (R, W, 2), region_count (R,), the arcs per region (``Arcs`` whose
     ``couple`` is the region, in region order, jumps relative to each region's reference point) and the
-    regions' reference points (R, 2) in (u, v), and how many of the regions are cells. Regions follow the
+    regions' reference points (R, 2) in (u, v), how many of the regions are cells, and (R,) int64
+    D(region's R) - D(couple's R) (0 for a couple's light; see ``_region_arcs``). Regions follow the
     members' order.
     """
     grid = np.where(arcs_of[members] > CELL_ARCS,
@@ -53,7 +57,8 @@ def couple_regions(couples: ReceiverLight, frames: LightFrames, arcs: Arcs, orde
     if len(heavy_rows) == 0:  # every region is a couple's light: the arcs stay, renumbered by member
         arcs = arcs.take(order)
         region_arcs = dataclasses.replace(arcs, couple=np.searchsorted(members, arcs.couple))
-        return (members, couples.uv[members], couples.count[members], region_arcs, reference_uv[members], 0)
+        return (members, couples.uv[members], couples.count[members], region_arcs, reference_uv[members], 0,
+                np.zeros(len(members), np.int64))
     heavy = members[heavy_rows]
     g = grid[heavy_rows]
     uv, count = couples.uv[heavy], couples.count[heavy]
@@ -145,21 +150,29 @@ def couple_regions(couples: ReceiverLight, frames: LightFrames, arcs: Arcs, orde
               i64(arcs.jump))
     capacity = max(1024, 2 * len(arcs.couple))
     while True:  # the rows outgrow their estimate (an arc in several cells): again with four times the room
-        out = _region_arcs(*inputs, capacity)
+        carry = np.zeros(n_regions, np.int64)
+        out = _region_arcs(*inputs, carry, capacity)
         if out[-1] >= 0:
             m = out[-1]
             # Copies: slices would keep the larger buffers alive.
             region_arcs = Arcs(*(array[:m].copy() for array in out[:-1]))
-            return region_couple, region_uv, region_count, region_arcs, region_ref_uv, len(cell_region)
+            return region_couple, region_uv, region_count, region_arcs, region_ref_uv, len(cell_region), carry
         capacity *= 4
 
 
 @njit(cache=True, nogil=True)
 def _region_arcs(members, first_arc, arcs_of, region_first, grid_of, heavy_index, low, step, cell_first,
                  slot_region, slot_cone, planes, valid, cell_ref, reference, light, local, side, tangent, bitangent,
-                 normal_l, order, start, end, normal, enter, leave, jump, capacity):
+                 normal_l, order, start, end, normal, enter, leave, jump, carry, capacity):
     """The arcs of each region, in region order (see the module docstring). Returns region, start, end,
-    normal, enter, leave, jump (capacity rows) and the number filled, or -1 when they did not fit."""
+    normal, enter, leave, jump (capacity rows) and the number filled, or -1 when they did not fit.
+
+    Also fills ``carry`` (regions,) int64: D(cell's R) - D(couple's R) for each cell (0 for a couple's
+    light), counted across the arcs between the two points: from the couple's R to its first cell's over
+    all the couple's arcs, then from cell to neighbouring cell (a breadth-first walk over the grid) over
+    the arcs of the two cells only. Two side-by-side cells of a grid over a convex light form a convex
+    region, so the segment between their reference points stays inside it and every arc it crosses is
+    listed in one of the two."""
     out_region = np.empty(capacity, np.int64)
     out_start = np.empty((capacity, 3))
     out_end = np.empty((capacity, 3))
@@ -176,6 +189,13 @@ def _region_arcs(members, first_arc, arcs_of, region_first, grid_of, heavy_index
     row_enter = np.empty(most)
     row_leave = np.empty(most)
     per_slot = np.zeros(MAX_GRID * MAX_GRID + 1, np.int64)
+    slot_begin = np.zeros(MAX_GRID * MAX_GRID + 1, np.int64)
+    queue = np.empty(MAX_GRID * MAX_GRID, np.int64)
+    visited = np.zeros(MAX_GRID * MAX_GRID, np.bool_)
+    sorted_arc = np.empty(most, np.int64)
+    mark = np.zeros(len(start), np.int64)  # the last carry step that tested each arc (a stamp)
+    stamp = 0
+    point = np.empty(3)
     m = 0
     for r in range(len(members)):
         c = members[r]
@@ -184,6 +204,7 @@ def _region_arcs(members, first_arc, arcs_of, region_first, grid_of, heavy_index
         if g == 0:  # the couple's light is its one region
             if m + n > capacity:
                 return out_region, out_start, out_end, out_normal, out_enter, out_leave, out_jump, -1
+            carry[region_first[r]] = 0
             for k_arc in range(a0, a0 + n):
                 a = order[k_arc]
                 out_region[m] = region_first[r]
@@ -245,7 +266,12 @@ def _region_arcs(members, first_arc, arcs_of, region_first, grid_of, heavy_index
             per_slot[row_slot[q] + 1] += 1
         for s in range(cells):
             per_slot[s + 1] += per_slot[s]
+        for s in range(cells + 1):
+            slot_begin[s] = per_slot[s]
+        if len(sorted_arc) < rows:
+            sorted_arc = np.empty(len(row_arc), np.int64)
         for q in range(rows):
+            sorted_arc[per_slot[row_slot[q]]] = row_arc[q]
             place = m + per_slot[row_slot[q]]
             per_slot[row_slot[q]] += 1
             a = row_arc[q]
@@ -261,7 +287,69 @@ def _region_arcs(members, first_arc, arcs_of, region_first, grid_of, heavy_index
             out_enter[place], out_leave[place] = row_enter[q], row_leave[q]
             out_jump[place] = jump[a] if side_couple == side_cell else -jump[a]
         m += rows
+        # The cells' depths relative to the couple's R (see the docstring); per_slot[s] now ends slot s.
+        root = -1
+        for s in range(cells):
+            visited[s] = False
+            if root < 0 and slot_cone[cell_first[h] + s] >= 0:
+                root = s
+        if root < 0:
+            continue
+        ref = reference[c]
+        d = 0
+        for k_arc in range(a0, a0 + n):
+            d += _crossing_jump(order[k_arc], ref, cell_ref[slot_cone[cell_first[h] + root]], ref, start, end,
+                                normal, jump, point)
+        carry[slot_region[cell_first[h] + root]] = d
+        visited[root] = True
+        queue[0] = root
+        head, tail = 0, 1
+        while head < tail:
+            s = queue[head]
+            head += 1
+            here = cell_first[h] + s
+            for step_i, step_j in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+                ni, nj = s // g + step_i, s % g + step_j
+                if ni < 0 or nj < 0 or ni >= g or nj >= g:
+                    continue
+                t = ni * g + nj
+                there = cell_first[h] + t
+                if visited[t] or slot_cone[there] < 0:
+                    continue
+                visited[t] = True
+                queue[tail] = t
+                tail += 1
+                stamp += 1
+                total = 0
+                for part in range(2):  # the arcs of both cells, each tested once
+                    u = s if part == 0 else t
+                    for q in range(slot_begin[u], per_slot[u]):
+                        a = sorted_arc[q]
+                        if mark[a] == stamp:
+                            continue
+                        mark[a] = stamp
+                        total += _crossing_jump(a, cell_ref[slot_cone[here]], cell_ref[slot_cone[there]], ref, start,
+                                                end, normal, jump, point)
+                carry[slot_region[there]] = carry[slot_region[here]] + total
     return out_region, out_start, out_end, out_normal, out_enter, out_leave, out_jump, m
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _crossing_jump(a, p, q, ref, start, end, normal, jump, point):
+    """The change of D along the segment p -> q (directions) across arc ``a``: 0 where it does not cross
+    the arc, else the arc's jump (``Arcs.jump``, from the side of ``ref``), negated when p lies on the other
+    side. The test is ``arrangement._jumps``'s."""
+    at_p = normal[a, 0] * p[0] + normal[a, 1] * p[1] + normal[a, 2] * p[2]
+    at_q = normal[a, 0] * q[0] + normal[a, 1] * q[1] + normal[a, 2] * q[2]
+    if not ((at_p < 0.0 and at_q > 0.0) or (at_p > 0.0 and at_q < 0.0)):
+        return 0
+    s = at_p / (at_p - at_q)
+    for k in range(3):
+        point[k] = p[k] + s * (q[k] - p[k])
+    if not _on_arc(point, start[a], end[a], normal[a], 0.0):
+        return 0
+    at_ref = normal[a, 0] * ref[0] + normal[a, 1] * ref[1] + normal[a, 2] * ref[2]
+    return jump[a] if (at_p >= 0.0) == (at_ref >= 0.0) else -jump[a]
 
 
 @njit(cache=True, nogil=True)
@@ -282,5 +370,5 @@ def compile_regions() -> list:
     """Compile ``_region_arcs`` (or load it from Numba's cache) on a one-couple input; returns it."""
     i, f, f2 = np.zeros(1, np.int64), np.zeros((1, 3)), np.zeros((1, 2))
     _region_arcs(i, i, i, i, i, i, f2, f2, i, i, i, np.zeros((1, 3, 3)), np.zeros((1, 3), np.bool_), f, f, i, f,
-                 np.ones(1), f, f, f, i, f, f, f, np.zeros(1), np.zeros(1), i, 16)
+                 np.ones(1), f, f, f, i, f, f, f, np.zeros(1), np.zeros(1), i, np.zeros(1, np.int64), 16)
     return [_region_arcs]

@@ -13,7 +13,8 @@ rim). So, per (receiver, light) couple:
    group box's corners); no shadow ray has to hit anything first.
 2. **Arcs.** Per couple, the edges whose jump is not 0 (``_couple_arcs``), clipped to the part in front of
    the light's plane; their range inside the light's cone is kept.
-3. **One reference depth.** D at one interior point R of the light, counted by a ray (``depth_counts``).
+3. **One reference depth.** D at one interior point R of the light, counted by a ray (``depth_counts``)
+   and checked by probe rays; a cell of a heavy couple (``regions``) gets its D carried from R.
 4. **The arrangement** (``arrangement``, compiled). The arcs split each other and the light's edges into
    pieces; D on each side of a piece is D(R) plus the jumps of the arcs that the arc from R to the
    piece's midpoint crosses. A piece with D = 0 on exactly one side (or a light edge piece with D = 0
@@ -791,51 +792,58 @@ def _visible_parts(surface, couple_pixel, couples, frames, edges, tracer, arcs: 
     polygons (couple, uv, count); adds to ``stats``."""
     # Regions: a couple's light, or, where many arcs cross it (foliage), the cells of a grid over it, so
     # that the arrangement's cost (pairs of arcs) follows the arcs per cell.
-    region_couple, region_uv, region_count, region_arcs, region_ref_uv, cells = couple_regions(
+    region_couple, region_uv, region_count, region_arcs, region_ref_uv, cells, carry = couple_regions(
         couples, frames, arcs, np.argsort(arcs.couple, kind="stable"), arcs_of, reference, reference_uv, members)
     stats["cells"] += cells
     region_dirs = couples.directions(frames, region_uv, region_couple)
     region_ref = couples.directions(frames, region_ref_uv[:, None, :], region_couple)[:, 0]
     region_arcs_of = np.bincount(region_arcs.couple, minlength=len(region_couple))
 
-    # The reference depth: counted fully where arcs cross the region, hidden or not elsewhere.
-    origin = position[region_couple] + (surface.offset[couple_pixel] [:, None] * surface.geometric_normal[couple_pixel]
-                                        )[region_couple]
-    depth = depth_counts(tracer, origin, position[region_couple] + region_ref, own[region_couple],
-                         region_arcs_of > 0, couples.light[region_couple], edges)
-    stats["depth_rays"] += len(region_couple)
+    # The reference depth of each couple: counted fully where arcs cross its light, hidden or not elsewhere.
+    # A cell's comes from its couple's, carried across the couple's arcs between the two reference points
+    # (both inside the couple's convex light, whose arcs are all known): no ray per cell.
+    pixel = couple_pixel[members]
+    origin = position[members] + surface.offset[pixel][:, None] * surface.geometric_normal[pixel]
+    crossed_members = np.flatnonzero(arcs_of[members] > 0)
+    member_depth = depth_counts(tracer, origin, position[members] + reference[members], own[members],
+                                arcs_of[members] > 0, couples.light[members], edges)
+    stats["depth_rays"] += len(members)
+    couple_arcs = arcs.take(np.argsort(arcs.couple, kind="stable"))
+    couple_arcs = dataclasses.replace(couple_arcs, couple=np.searchsorted(members, couple_arcs.couple))
     # One ray can count too few layers (faces touching or overlapping where it passes, met at one
     # distance) or too many (through an edge two faces share): probe rays to other points of each
-    # crossed region, carried back to R across the arcs between, each estimate D(R) too, and the value
+    # crossed light, carried back to R across the arcs between, each estimate D(R) too, and the value
     # most of the estimates give is kept (the larger on a tie).
-    crossed_regions = np.flatnonzero(region_arcs_of > 0)
 
-    def probe_estimates(regions: np.ndarray, probes: list[int]) -> np.ndarray:
-        """(len(regions), len(probes)) int64 estimates of D(R): each probe ray's count carried back to R."""
-        probe_region = np.repeat(regions, len(probes))
-        probe = np.tile(np.asarray(probes, np.int64), len(regions))
-        probe_uv = _probe_points(region_uv[probe_region], region_count[probe_region], probe)
-        probe_dir = couples.directions(frames, probe_uv[:, None, :], region_couple[probe_region])[:, 0]
-        probe_depth = depth_counts(tracer, origin[probe_region], position[region_couple[probe_region]] + probe_dir,
-                                   own[region_couple[probe_region]], np.ones(len(probe_region), bool),
-                                   couples.light[region_couple[probe_region]], edges)
-        between = jumps_between(region_arcs, region_ref, probe_region, probe_dir, len(region_couple))
-        stats["depth_rays"] += len(probe_region)
-        return (probe_depth - between).reshape(len(regions), len(probes))
+    def probe_estimates(rows: np.ndarray, probes: list[int]) -> np.ndarray:
+        """(len(rows), len(probes)) int64 estimates of D(R) of the couples members[rows]: each probe
+        ray's count carried back to R."""
+        probe_row = np.repeat(rows, len(probes))
+        probe = np.tile(np.asarray(probes, np.int64), len(rows))
+        probe_couple = members[probe_row]
+        probe_uv = _probe_points(couples.uv[probe_couple], couples.count[probe_couple], probe)
+        probe_dir = couples.directions(frames, probe_uv[:, None, :], probe_couple)[:, 0]
+        probe_depth = depth_counts(tracer, origin[probe_row], position[probe_couple] + probe_dir,
+                                   own[probe_couple], np.ones(len(probe_row), bool), couples.light[probe_couple],
+                                   edges)
+        between = jumps_between(couple_arcs, reference[members], probe_row, probe_dir, len(members))
+        stats["depth_rays"] += len(probe_row)
+        return (probe_depth - between).reshape(len(rows), len(probes))
 
-    if len(crossed_regions):
+    if len(crossed_members):
         # The mode of R's count and all probes' estimates, in two rounds: where R and the first two probes
         # agree, that value is the mode of all five whatever the other two give (three of five), so their
         # rays are cast only where the first three differ.
-        estimates = np.concatenate([depth[crossed_regions][:, None],
-                                    probe_estimates(crossed_regions, list(range(PROBES_FIRST)))], axis=1)
+        estimates = np.concatenate([member_depth[crossed_members][:, None],
+                                    probe_estimates(crossed_members, list(range(PROBES_FIRST)))], axis=1)
         assert 2 * estimates.shape[1] > len(_PROBE_WEIGHTS) + 1  # a unanimous first round is a majority
         split = np.flatnonzero((estimates != estimates[:, :1]).any(axis=1))
         decided = estimates[:, 0].copy()
         if len(split):
-            rest = probe_estimates(crossed_regions[split], list(range(PROBES_FIRST, len(_PROBE_WEIGHTS))))
+            rest = probe_estimates(crossed_members[split], list(range(PROBES_FIRST, len(_PROBE_WEIGHTS))))
             decided[split] = _most_common(np.concatenate([estimates[split], rest], axis=1))
-        depth[crossed_regions] = decided
+        member_depth[crossed_members] = decided
+    depth = member_depth[np.searchsorted(members, region_couple)] + carry
 
     # Regions crossed by no arc are wholly visible or wholly hidden: their polygon as it is.
     crossed = region_arcs_of > 0
