@@ -170,7 +170,7 @@ def _region_arcs(members, first_arc, arcs_of, region_first, grid_of, heavy_index
     Also fills ``carry`` (regions,) int64: D(cell's R) - D(couple's R) for each cell (0 for a couple's
     light), counted across the arcs between the two points: from the couple's R to its first cell's over
     all the couple's arcs, then from cell to neighbouring cell (a breadth-first walk over the grid) over
-    the arcs of the two cells only. Two side-by-side cells of a grid over a convex light form a convex
+    the arcs of the two cells only, as just written (their jumps relative to each cell's R). Two side-by-side cells of a grid over a convex light form a convex
     region, so the segment between their reference points stays inside it and every arc it crosses is
     listed in one of the two."""
     out_region = np.empty(capacity, np.int64)
@@ -286,6 +286,7 @@ def _region_arcs(members, first_arc, arcs_of, region_first, grid_of, heavy_index
                 out_start[place, k], out_end[place, k], out_normal[place, k] = start[a, k], end[a, k], normal[a, k]
             out_enter[place], out_leave[place] = row_enter[q], row_leave[q]
             out_jump[place] = jump[a] if side_couple == side_cell else -jump[a]
+        base = m
         m += rows
         # The cells' depths relative to the couple's R (see the docstring); per_slot[s] now ends slot s.
         root = -1
@@ -298,8 +299,8 @@ def _region_arcs(members, first_arc, arcs_of, region_first, grid_of, heavy_index
         ref = reference[c]
         d = 0
         for k_arc in range(a0, a0 + n):
-            d += _crossing_jump(order[k_arc], ref, cell_ref[slot_cone[cell_first[h] + root]], ref, start, end,
-                                normal, jump, point)
+            d += _crossing_jump(order[k_arc], ref, cell_ref[slot_cone[cell_first[h] + root]], start, end, normal,
+                                jump, point)
         carry[slot_region[cell_first[h] + root]] = d
         visited[root] = True
         queue[0] = root
@@ -321,24 +322,26 @@ def _region_arcs(members, first_arc, arcs_of, region_first, grid_of, heavy_index
                 tail += 1
                 stamp += 1
                 total = 0
-                for part in range(2):  # the arcs of both cells, each tested once
+                for part in range(2):  # the arcs of both cells, each tested once, read where they were written
                     u = s if part == 0 else t
+                    # A crossing leaves R of cell s's side of its arc (+ its jump there) and arrives on R of
+                    # cell t's (- its jump there).
+                    turn = 1 if part == 0 else -1
                     for q in range(slot_begin[u], per_slot[u]):
                         a = sorted_arc[q]
                         if mark[a] == stamp:
                             continue
                         mark[a] = stamp
-                        total += _crossing_jump(a, cell_ref[slot_cone[here]], cell_ref[slot_cone[there]], ref, start,
-                                                end, normal, jump, point)
+                        total += turn * _crossing_jump(base + q, cell_ref[slot_cone[here]], cell_ref[slot_cone[there]],
+                                                       out_start, out_end, out_normal, out_jump, point)
                 carry[slot_region[there]] = carry[slot_region[here]] + total
     return out_region, out_start, out_end, out_normal, out_enter, out_leave, out_jump, m
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _crossing_jump(a, p, q, ref, start, end, normal, jump, point):
-    """The change of D along the segment p -> q (directions) across arc ``a``: 0 where it does not cross
-    the arc, else the arc's jump (``Arcs.jump``, from the side of ``ref``), negated when p lies on the other
-    side. The test is ``arrangement._jumps``'s."""
+def _crossing_jump(a, p, q, start, end, normal, jump, point):
+    """The change of D along the segment p -> q (directions) across arc ``a`` whose ``jump`` is taken from
+    p's side: 0 where the segment does not cross the arc (``arrangement._jumps``'s test), else the jump."""
     at_p = normal[a, 0] * p[0] + normal[a, 1] * p[1] + normal[a, 2] * p[2]
     at_q = normal[a, 0] * q[0] + normal[a, 1] * q[1] + normal[a, 2] * q[2]
     if not ((at_p < 0.0 and at_q > 0.0) or (at_p > 0.0 and at_q < 0.0)):
@@ -346,10 +349,7 @@ def _crossing_jump(a, p, q, ref, start, end, normal, jump, point):
     s = at_p / (at_p - at_q)
     for k in range(3):
         point[k] = p[k] + s * (q[k] - p[k])
-    if not _on_arc(point, start[a], end[a], normal[a], 0.0):
-        return 0
-    at_ref = normal[a, 0] * ref[0] + normal[a, 1] * ref[1] + normal[a, 2] * ref[2]
-    return jump[a] if (at_p >= 0.0) == (at_ref >= 0.0) else -jump[a]
+    return jump[a] if _on_arc(point, start[a], end[a], normal[a], 0.0) else 0
 
 
 @njit(cache=True, nogil=True)
