@@ -263,7 +263,10 @@ def _primary(scene: Scene, tracer, extent: float, settings: Settings, progress: 
 SILHOUETTE_COUNTERS = ("nodes_visited", "edge_tests", "arcs", "depth_rays", "inconsistent_couples", "cells")
 
 # Smallest batch split further for threads: per-batch numpy overheads stay well under the work.
-MIN_SHARED_BATCH = 2048
+MIN_SHARED_BATCH = 1024
+# Batches per thread at least (above MIN_SHARED_BATCH pixels each): shadows gather work in a few rows of
+# the image, so more, smaller batches even out the threads' loads.
+BATCHES_PER_THREAD = 8
 
 
 def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: BlockerMap | None, settings: Settings,
@@ -289,7 +292,7 @@ def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: Bloc
     # Batches of at most pixel_batch, but enough of them to keep every thread busy: anti-aliasing shades
     # sets of a few thousand samples, which one batch would leave to one core.
     threads = thread_count(settings.threads)
-    batch = min(settings.pixel_batch, max(MIN_SHARED_BATCH, -(-n_pixels // (4 * threads))))
+    batch = min(settings.pixel_batch, max(MIN_SHARED_BATCH, -(-n_pixels // (BATCHES_PER_THREAD * threads))))
     if edges is not None:  # the silhouettes' temporaries grow with the lights' vertices
         batch = min(batch, pixel_batch_for(settings.memory_budget_mb, threads, frames))
     # Entries are sorted by pixel, so each batch's entries form one contiguous run.
