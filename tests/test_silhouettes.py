@@ -184,6 +184,17 @@ def test_mesh_edges_pair_faces_and_keep_boundaries():
     quad = MeshEdges.from_triangles(quad_triangles([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)]))
     faces = (quad.triangle >= 0).sum(axis=1)
     assert len(quad) == 5 and sorted(faces.tolist()) == [1, 1, 1, 1, 2]
+    # A book of six pages on one spine: the spine's six faces over two records (MAX_INCIDENCE = 4 each);
+    # each page's two other edges are boundaries.
+    spine = np.array([(0.0, 0.0, 0.0), (0.0, 1.0, 0.0)])
+    angles = np.linspace(0.0, np.pi, 6)
+    pages = np.array([[spine[0], spine[1], (np.cos(a), 0.5, np.sin(a))] for a in angles])
+    book = MeshEdges.from_triangles(pages)
+    faces = (book.triangle >= 0).sum(axis=1)
+    along_spine = (np.abs(book.start[:, 0]) + np.abs(book.end[:, 0]) + np.abs(book.start[:, 2])
+                   + np.abs(book.end[:, 2])) == 0
+    assert len(book) == 14 and sorted(faces[along_spine].tolist()) == [2, 4]
+    assert sorted(book.triangle[along_spine][book.triangle[along_spine] >= 0].tolist()) == list(range(6))
 
 
 def fan_area(couple, start, end, sign, reference, n_couples):
