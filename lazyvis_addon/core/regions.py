@@ -33,14 +33,13 @@ MAX_GRID = 24
 CELL_BATCH = 1 << 15
 
 
-def couple_regions(couples: ReceiverLight, frames: LightFrames, arcs: Arcs, order: np.ndarray, arcs_of: np.ndarray,
+def couple_regions(couples: ReceiverLight, frames: LightFrames, arcs: Arcs, arcs_of: np.ndarray,
                    reference: np.ndarray, reference_uv: np.ndarray, members: np.ndarray):
     """The regions of the couples ``members`` (sorted) and their arcs.
 
     Parameters
     ----------
-    couples : the batch's couples; arcs : ``Arcs`` of the members (and no other couple), in any order, and
-    order : (S,) int64 the stable order of arcs.couple (the arcs are gathered in it, not sorted first);
+    couples : the batch's couples; arcs : ``Arcs`` of the members (and no other couple), sorted by couple;
     arcs_of : (Nc,) int64 arcs per couple; reference, reference_uv : (Nc, 3) and (Nc, 2) each couple's R.
 
     Returns
@@ -55,7 +54,6 @@ def couple_regions(couples: ReceiverLight, frames: LightFrames, arcs: Arcs, orde
                     np.minimum(np.ceil(np.sqrt(arcs_of[members] / CELL_TARGET)), MAX_GRID), 0).astype(np.int64)
     heavy_rows = np.flatnonzero(grid > 0)
     if len(heavy_rows) == 0:  # every region is a couple's light: the arcs stay, renumbered by member
-        arcs = arcs.take(order)
         region_arcs = dataclasses.replace(arcs, couple=np.searchsorted(members, arcs.couple))
         return (members, couples.uv[members], couples.count[members], region_arcs, reference_uv[members], 0,
                 np.zeros(len(members), np.int64))
@@ -146,7 +144,7 @@ def couple_regions(couples: ReceiverLight, frames: LightFrames, arcs: Arcs, orde
               f64(low), f64(step), i64(cell_first), i64(slot_region), i64(slot_cone), f64(planes),
               np.ascontiguousarray(valid, np.bool_), f64(cell_ref), f64(reference), i64(couples.light),
               f64(couples.local), f64(couples.side), frames.tangent, frames.bitangent, frames.normal,
-              i64(order), f64(arcs.start), f64(arcs.end), f64(arcs.normal), f64(arcs.enter), f64(arcs.leave),
+              np.arange(len(arcs.couple), dtype=np.int64), f64(arcs.start), f64(arcs.end), f64(arcs.normal), f64(arcs.enter), f64(arcs.leave),
               i64(arcs.jump))
     capacity = max(1024, 2 * len(arcs.couple))
     while True:  # the rows outgrow their estimate (an arc in several cells): again with four times the room

@@ -795,10 +795,11 @@ def _visible_parts(surface, couple_pixel, couples, frames, edges, tracer, arcs: 
     """Regions, reference depths and the arrangement of the couples ``members`` (sorted, whose arcs
     ``arcs`` are, in query order): signed fan triangles (uv (M, 3, 2), couple (M,), sign (M,)) and whole
     polygons (couple, uv, count); adds to ``stats``."""
+    arcs = arcs.take(np.argsort(arcs.couple, kind="stable"))
     # Regions: a couple's light, or, where many arcs cross it (foliage), the cells of a grid over it, so
     # that the arrangement's cost (pairs of arcs) follows the arcs per cell.
     region_couple, region_uv, region_count, region_arcs, region_ref_uv, cells, carry = couple_regions(
-        couples, frames, arcs, np.argsort(arcs.couple, kind="stable"), arcs_of, reference, reference_uv, members)
+        couples, frames, arcs, arcs_of, reference, reference_uv, members)
     stats["cells"] += cells
     region_dirs = couples.directions(frames, region_uv, region_couple)
     region_ref = couples.directions(frames, region_ref_uv[:, None, :], region_couple)[:, 0]
@@ -813,8 +814,7 @@ def _visible_parts(surface, couple_pixel, couples, frames, edges, tracer, arcs: 
     member_depth = depth_counts(tracer, origin, position[members] + reference[members], own[members],
                                 arcs_of[members] > 0, couples.light[members], edges)
     stats["depth_rays"] += len(members)
-    couple_arcs = arcs.take(np.argsort(arcs.couple, kind="stable"))
-    couple_arcs = dataclasses.replace(couple_arcs, couple=np.searchsorted(members, couple_arcs.couple))
+    couple_arcs = dataclasses.replace(arcs, couple=np.searchsorted(members, arcs.couple))  # by member row
     # One ray can count too few layers (faces touching or overlapping where it passes, met at one
     # distance) or too many (through an edge two faces share): probe rays to other points of each
     # crossed light, carried back to R across the arcs between, each estimate D(R) too, and the value
