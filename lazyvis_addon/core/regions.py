@@ -144,8 +144,7 @@ def couple_regions(couples: ReceiverLight, frames: LightFrames, arcs: Arcs, arcs
               f64(low), f64(step), i64(cell_first), i64(slot_region), i64(slot_cone), f64(planes),
               np.ascontiguousarray(valid, np.bool_), f64(cell_ref), f64(reference), i64(couples.light),
               f64(couples.local), f64(couples.side), frames.tangent, frames.bitangent, frames.normal,
-              np.arange(len(arcs.couple), dtype=np.int64), f64(arcs.start), f64(arcs.end), f64(arcs.normal), f64(arcs.enter), f64(arcs.leave),
-              i64(arcs.jump))
+              f64(arcs.start), f64(arcs.end), f64(arcs.normal), f64(arcs.enter), f64(arcs.leave), i64(arcs.jump))
     capacity = max(1024, 2 * len(arcs.couple))
     while True:  # the rows outgrow their estimate (an arc in several cells): again with four times the room
         carry = np.zeros(n_regions, np.int64)
@@ -161,16 +160,16 @@ def couple_regions(couples: ReceiverLight, frames: LightFrames, arcs: Arcs, arcs
 @njit(cache=True, nogil=True)
 def _region_arcs(members, first_arc, arcs_of, region_first, grid_of, heavy_index, low, step, cell_first,
                  slot_region, slot_cone, planes, valid, cell_ref, reference, light, local, side, tangent, bitangent,
-                 normal_l, order, start, end, normal, enter, leave, jump, carry, capacity):
+                 normal_l, start, end, normal, enter, leave, jump, carry, capacity):
     """The arcs of each region, in region order (see the module docstring). Returns region, start, end,
     normal, enter, leave, jump (capacity rows) and the number filled, or -1 when they did not fit.
 
     Also fills ``carry`` (regions,) int64: D(cell's R) - D(couple's R) for each cell (0 for a couple's
     light), counted across the arcs between the two points: from the couple's R to its first cell's over
     all the couple's arcs, then from cell to neighbouring cell (a breadth-first walk over the grid) over
-    the arcs of the two cells only, as just written (their jumps relative to each cell's R). Two side-by-side cells of a grid over a convex light form a convex
-    region, so the segment between their reference points stays inside it and every arc it crosses is
-    listed in one of the two."""
+    the arcs of the two cells only, as just written (their jumps relative to each cell's R). Two
+    side-by-side cells of a grid over a convex light form a convex region, so the segment between their
+    reference points stays inside it and every arc it crosses is listed in one of the two."""
     out_region = np.empty(capacity, np.int64)
     out_start = np.empty((capacity, 3))
     out_end = np.empty((capacity, 3))
@@ -203,8 +202,7 @@ def _region_arcs(members, first_arc, arcs_of, region_first, grid_of, heavy_index
             if m + n > capacity:
                 return out_region, out_start, out_end, out_normal, out_enter, out_leave, out_jump, -1
             carry[region_first[r]] = 0
-            for k_arc in range(a0, a0 + n):
-                a = order[k_arc]
+            for a in range(a0, a0 + n):
                 out_region[m] = region_first[r]
                 for k in range(3):
                     out_start[m, k], out_end[m, k], out_normal[m, k] = start[a, k], end[a, k], normal[a, k]
@@ -215,8 +213,7 @@ def _region_arcs(members, first_arc, arcs_of, region_first, grid_of, heavy_index
         l = light[c]
         rows = 0
         toward0, toward1, toward2 = -side[c] * normal_l[l, 0], -side[c] * normal_l[l, 1], -side[c] * normal_l[l, 2]
-        for k_arc in range(a0, a0 + n):
-            a = order[k_arc]
+        for a in range(a0, a0 + n):
             # The (u, v) box of the arc's part inside the couple's cone: the grid cells it may cross.
             i0, i1, j0, j1 = g, -1, g, -1
             for e in range(2):
@@ -296,8 +293,8 @@ def _region_arcs(members, first_arc, arcs_of, region_first, grid_of, heavy_index
             continue
         ref = reference[c]
         d = 0
-        for k_arc in range(a0, a0 + n):
-            d += _crossing_jump(order[k_arc], ref, cell_ref[slot_cone[cell_first[h] + root]], start, end, normal,
+        for a in range(a0, a0 + n):
+            d += _crossing_jump(a, ref, cell_ref[slot_cone[cell_first[h] + root]], start, end, normal,
                                 jump, point)
         carry[slot_region[cell_first[h] + root]] = d
         visited[root] = True
@@ -368,5 +365,5 @@ def compile_regions() -> list:
     """Compile ``_region_arcs`` (or load it from Numba's cache) on a one-couple input; returns it."""
     i, f, f2 = np.zeros(1, np.int64), np.zeros((1, 3)), np.zeros((1, 2))
     _region_arcs(i, i, i, i, i, i, f2, f2, i, i, i, np.zeros((1, 3, 3)), np.zeros((1, 3), np.bool_), f, f, i, f,
-                 np.ones(1), f, f, f, i, f, f, f, np.zeros(1), np.zeros(1), i, np.zeros(1, np.int64), 16)
+                 np.ones(1), f, f, f, f, f, f, np.zeros(1), np.zeros(1), i, np.zeros(1, np.int64), 16)
     return [_region_arcs]
