@@ -446,21 +446,27 @@ def jumps_between(arcs, reference: np.ndarray, region: np.ndarray, target: np.nd
                   np.ascontiguousarray(region, np.int64), np.ascontiguousarray(target, np.float64))
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _crossing_jump(a, p, q, start, end, normal, jump, point):
+    """The change of D along the segment p -> q (directions) across arc ``a``, whose ``jump`` is taken from
+    p's side: the jump where the segment crosses the arc strictly (its plane's values at p and q differ in
+    sign and the crossing lies inside the arc), else 0. ``point`` (3,): scratch."""
+    at_p = _dot(normal[a], p)
+    at_q = _dot(normal[a], q)
+    if not _straddles(at_p, at_q):
+        return 0
+    s = at_p / (at_p - at_q)
+    for k in range(3):
+        point[k] = p[k] + s * (q[k] - p[k])
+    return jump[a] if _on_arc(point, start[a], end[a], normal[a], 0.0) else 0
+
+
 @njit(cache=True, nogil=True)
 def _jumps(first_arc, arcs_of, start, end, normal, jump, reference, region, target):
     total = np.zeros(len(region), np.int64)
     point = np.empty(3)
     for p in range(len(region)):
         r = region[p]
-        ref = reference[r]
         for j in range(first_arc[r], first_arc[r] + arcs_of[r]):
-            origin_value = _dot(normal[j], ref)
-            value = _dot(normal[j], target[p])
-            if not _straddles(origin_value, value):
-                continue
-            s = origin_value / (origin_value - value)
-            for k in range(3):
-                point[k] = ref[k] + s * (target[p, k] - ref[k])
-            if _on_arc(point, start[j], end[j], normal[j], 0.0):
-                total[p] += jump[j]
+            total[p] += _crossing_jump(j, reference[r], target[p], start, end, normal, jump, point)
     return total

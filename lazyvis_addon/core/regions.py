@@ -21,7 +21,7 @@ import numpy as np
 from numba import njit
 
 from .arcs import Arcs, _cone_range, cone_of_light
-from .arrangement import _on_arc
+from .arrangement import _crossing_jump
 from .geometry import LightFrames, ReceiverLight, clip_by_lines, pad_to, reference_points, trim
 
 # A couple crossed by more arcs than this is cut into a grid of cells of about CELL_TARGET arcs each (at
@@ -331,20 +331,6 @@ def _region_arcs(members, first_arc, arcs_of, region_first, grid_of, heavy_index
                                                        out_start, out_end, out_normal, out_jump, point)
                 carry[slot_region[there]] = carry[slot_region[here]] + total
     return out_region, out_start, out_end, out_normal, out_enter, out_leave, out_jump, m
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _crossing_jump(a, p, q, start, end, normal, jump, point):
-    """The change of D along the segment p -> q (directions) across arc ``a`` whose ``jump`` is taken from
-    p's side: 0 where the segment does not cross the arc (``arrangement._jumps``'s test), else the jump."""
-    at_p = normal[a, 0] * p[0] + normal[a, 1] * p[1] + normal[a, 2] * p[2]
-    at_q = normal[a, 0] * q[0] + normal[a, 1] * q[1] + normal[a, 2] * q[2]
-    if not ((at_p < 0.0 and at_q > 0.0) or (at_p > 0.0 and at_q < 0.0)):
-        return 0
-    s = at_p / (at_p - at_q)
-    for k in range(3):
-        point[k] = p[k] + s * (q[k] - p[k])
-    return jump[a] if _on_arc(point, start[a], end[a], normal[a], 0.0) else 0
 
 
 @njit(cache=True, nogil=True)
