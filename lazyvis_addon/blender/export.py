@@ -36,7 +36,7 @@ from ..core.blackbody import blackbody_rgb
 from ..core.emitters import group_mesh_emitters
 from ..core.facing import MAX_SUN_HALF_ANGLE
 from ..core.scene import (LOBE_DIFFUSE, LOBE_GLOSSY, LOBES_ALL, Camera, EmitterHulls, FacingLights, Lights,
-                          Materials, Scene)
+                          Materials, Scene, SeenLights)
 from ..core.texture import EXTENSIONS, INTERPOLATIONS, LINEAR_SPACES, SRGB_SPACES, ImageTexture
 
 DISK_VERTICES_DEFAULT = 32
@@ -295,7 +295,10 @@ def export_camera(camera_object, render, width: int, height: int) -> Camera:
                            render.pixel_aspect_x, render.pixel_aspect_y)
     border = (render.border_min_x, render.border_max_x, render.border_min_y, render.border_max_y) \
         if render.use_border else None
-    return Camera(matrix, width, height, projection, window, border_window(width, height, border))
+    clip_start = max(float(data.clip_start), 0.0)
+    clip_end = float(data.clip_end) if data.clip_end > clip_start else np.inf
+    return Camera(matrix, width, height, projection, window, border_window(width, height, border), clip_start,
+                  clip_end)
 
 
 def export_world(world, progress: Progress) -> np.ndarray:
@@ -739,6 +742,7 @@ class _DepsgraphReader:
         self.light_lobes: list[int] = []  # and the BSDF lobes it reaches (its object's Ray Visibility)
         self.facing: list[FacingLights] = []  # point, spot and sun lights
         self.facing_names: list[str] = []
+        self.seen: list[SeenLights] = []  # lights with Ray Visibility > Camera on, drawn where the camera sees them
         self.skipped: dict[str, set[str]] = {}
         self.counts = {"objects": 0, "instances": 0, "mesh_triangles": 0, "emitter_triangles": 0,
                        "area_lights": 0}
@@ -907,6 +911,8 @@ class _DepsgraphReader:
     def add_light(self, obj, matrix: np.ndarray) -> None:
         light = obj.data
         name = obj.name
+        if obj.visible_camera and light.type in ("AREA", "POINT", "SPOT", "SUN"):
+            self.add_seen_light(obj, matrix)
         if not _lobes_reached(obj):  # Ray Visibility: neither Diffuse nor Glossy, as Cycles, lights nothing
             return
         if light.type in ("POINT", "SPOT", "SUN"):
@@ -918,9 +924,6 @@ class _DepsgraphReader:
             return
         if not np.isfinite(matrix).all():
             raise ValueError(f"light '{name}' has a NaN or infinite transform")
-        if obj.visible_camera:
-            self.skip("area lights seen directly by the camera are not drawn (Cycles draws them when their "
-                      "Ray Visibility > Camera is on)", name)
         if light.shape in ("SQUARE", "RECTANGLE"):
             size_y = light.size if light.shape == "SQUARE" else light.size_y
             local = rectangle_polygon(light.size, size_y)
@@ -951,6 +954,54 @@ class _DepsgraphReader:
         self.light_lobes.append(_lobes_reached(obj))
         self.light_names.append(name)
         self.counts["area_lights"] += 1
+
+    def add_seen_light(self, obj, matrix: np.ndarray) -> None:
+        """A light with Ray Visibility > Camera on as a ``SeenLights`` row, drawn as Cycles 5.0.1 draws it
+        (measured, ``core/seen_lights.py``): an area light's emitting side with its radiance and Spread, a
+        lamp of radius above 0 as its disk (Soft Falloff) or sphere with a spot's cone, a sun of angle
+        above 0 as its disc in the sky. Lamps of radius 0 and suns of angle 0 are seen by no ray."""
+        light = obj.data
+        if not np.isfinite(matrix).all():
+            return  # add_light names it
+        color = np.array(light.color[:3], dtype=np.float64)
+        if getattr(light, "use_temperature", False):
+            color = color * np.array(light.temperature_color[:3])
+        factor = self.light_node_factor(light, obj.name)
+        if light.type == "AREA":
+            size_y = light.size if light.shape in ("SQUARE", "DISK") else light.size_y
+            linear = matrix[:3, :3]
+            u, v = linear @ np.array([0.5 * light.size, 0.0, 0.0]), linear @ np.array([0.0, 0.5 * size_y, 0.0])
+            normal = np.cross(u, v)
+            ellipse = light.shape in ("DISK", "ELLIPSE")
+            area = float(np.linalg.norm(normal)) * (math.pi if ellipse else 4.0)
+            if not area > 0:
+                return  # add_light names it
+            if np.dot(normal, -matrix[:3, 2]) < 0:  # emits along local -Z: u x v must point there
+                v = -v
+            radiance = area_light_radiance(color * factor, light.energy, light.exposure, light.normalize, area)
+            spread = float(light.spread) if abs(light.spread - math.pi) > 1e-6 else math.pi
+            self.seen.append(SeenLights.area(matrix[:3, 3], u, v, radiance, ellipse, spread))
+            return
+        power = color * light.energy * 2.0 ** getattr(light, "exposure", 0.0) * factor
+        if light.type == "SUN":
+            if light.angle > 0:
+                self.seen.append(SeenLights.sun(matrix[:3, 2], 0.5 * min(float(light.angle), math.pi - 1e-6),
+                                                power))
+            return
+        radius = float(light.shadow_soft_size)
+        if not radius > 0:
+            return
+        spot = None
+        if light.type == "SPOT":
+            linear = matrix[:3, :3]
+            if not abs(np.linalg.det(linear)) > 1e-18:
+                return
+            cone = FacingLights.point(matrix[:3, 3], radius, power).spot(np.linalg.inv(linear),
+                                                                          float(light.spot_size),
+                                                                          float(light.spot_blend))
+            spot = (cone.spot_frame[0], float(cone.spot_cos_half[0]), float(cone.spot_smooth[0]))
+        self.seen.append(SeenLights.lamp(matrix[:3, 3], radius, power / (4.0 * math.pi),
+                                         bool(getattr(light, "use_soft_falloff", True)), spot))
 
     def light_node_factor(self, light, name: str) -> np.ndarray:
         """(3,) what a light's node tree multiplies its colour and power by, as Cycles 5.0 reads it (measured:
@@ -992,9 +1043,6 @@ class _DepsgraphReader:
         if not power.max() > 0:
             self.skip("lights of zero or negative power, or black colour, are ignored", name)
             return
-        if obj.visible_camera and light.type != "SUN":
-            self.skip("point and spot lights are not drawn where the camera sees them (Cycles draws a lamp of "
-                      "radius above 0 when its Ray Visibility > Camera is on)", name)
         if light.type == "SUN":
             towards = matrix[:3, 2]  # a sun shines along its local -Z
             if not np.linalg.norm(towards) > 0:
@@ -1060,7 +1108,8 @@ class _DepsgraphReader:
                                                 for p in self.parts])
         lights, hulls, names, hull_names = self.lights()
         scene = Scene(triangles, material_index, self.material_table(), lights, camera, background, normals,
-                      corner_uvs, list(self.textures), terminator_offset, FacingLights.concat(self.facing), hulls)
+                      corner_uvs, list(self.textures), terminator_offset, FacingLights.concat(self.facing), hulls,
+                      SeenLights.concat(self.seen))
         names = names + list(self.facing_names) + hull_names
         return Export(scene, list(self.materials), names, dict(self.counts))
 

@@ -6,8 +6,8 @@
 
 from .progress import Progress, RenderCancelled
 from .render import BACKGROUND_DEPTH, RenderOutput, render
-from .scene import Camera, FacingLights, Lights, Materials, Scene
+from .scene import Camera, FacingLights, Lights, Materials, Scene, SeenLights
 from .settings import INTEGRATORS, Settings
 
 __all__ = ["BACKGROUND_DEPTH", "Camera", "FacingLights", "INTEGRATORS", "Lights", "Materials", "Progress", "RenderCancelled",
-           "RenderOutput", "Scene", "Settings", "render"]
+           "RenderOutput", "Scene", "SeenLights", "Settings", "render"]

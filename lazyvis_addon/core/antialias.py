@@ -40,7 +40,7 @@ from . import rng
 from .adaptive import close_holes, refine_mask
 from .blocker_map import BlockerMap, test_pairs
 from .blockers import triangle_components
-from .camera import camera_rays, window_pixels
+from .camera import camera_rays, clip_distance, window_pixels
 from .film import filter_offsets, offset_density
 from .parallel import thread_count
 from .scene import Scene
@@ -191,7 +191,7 @@ def _with_outside_ring(scene: Scene, grids, tracer, settings: Settings):
     if own:
         tracer = RayTracer(scene.triangles, threads=settings.threads or None)
     try:
-        hits = tracer.intersect(origins, directions, None)
+        hits = tracer.intersect(origins, directions, clip_distance(scene.camera, directions))
     finally:
         if own:
             tracer.close()
@@ -255,7 +255,7 @@ def subpixel_samples(scene: Scene, tracer, extent: float, pixels: np.ndarray, se
     samples = settings.aa_samples if samples is None else samples
     origins, directions, position, parent, sample = filter_rays(camera, pixels, samples, first, settings,
                                                                 pixel_global)
-    hits = tracer.intersect(origins, directions, None)
+    hits = tracer.intersect(origins, directions, clip_distance(camera, directions))
     surface = shade_hits(scene, origins, directions, hits.index_triangle, hits.u, hits.v, extent)
     # Distinct from every real pixel's identity, and distinct per sample: samples do not share noise.
     sample_global = (1 + sample) * (camera.width * camera.height) + pixel_global[parent]
@@ -339,7 +339,8 @@ def pixel_coverage(scene: Scene, tracer, pixels: np.ndarray, counts: np.ndarray,
     for lo, hi in zip(bounds[:-1], bounds[1:]):  # batches of pixels, a million rays each
         origins, directions, _, _, _ = filter_rays(scene.camera, pixels[lo:hi], extra[lo:hi], counts[lo:hi],
                                                    settings, pixel_global)
-        triangle = tracer.intersect(origins, directions, None).index_triangle if len(origins) else \
+        triangle = tracer.intersect(origins, directions, clip_distance(scene.camera, directions)).index_triangle \
+            if len(origins) else \
             np.zeros(0, np.int64)
         batch = np.arange(lo, hi)
         owner = np.concatenate([np.repeat(batch, counts[lo:hi]), np.repeat(batch, extra[lo:hi])])
@@ -419,7 +420,8 @@ def centre_suffices(scene: Scene, tracer, pixels: np.ndarray, centre_triangle: n
     for lo in range(0, len(pixels), step):  # batches of pixels, a million rays each
         rows = slice(lo, lo + step)
         origins, directions, _, _, _ = filter_rays(scene.camera, pixels[rows], rays, 0, settings, pixel_global)
-        seen = tracer.intersect(origins, directions, None).index_triangle.reshape(-1, rays)
+        seen = tracer.intersect(origins, directions, clip_distance(scene.camera, directions)).index_triangle \
+            .reshape(-1, rays)
         out[rows] = (seen == centre_triangle[rows, None]).all(axis=1)
     return out & (centre_triangle >= 0) & ~textured
 

@@ -33,7 +33,8 @@ def camera_rays(camera: Camera, x: np.ndarray, y: np.ndarray, offset: np.ndarray
 
     Returns
     -------
-    origins : (N, 3) float64, directions : (N, 3) float64 unit.
+    origins : (N, 3) float64 on the camera's clip-start plane (Cycles starts camera rays there),
+    directions : (N, 3) float64 unit.
     """
     fx = x + (0.5 if offset is None else offset[:, 0])
     fy = y + (0.5 if offset is None else offset[:, 1])
@@ -51,7 +52,19 @@ def camera_rays(camera: Camera, x: np.ndarray, y: np.ndarray, offset: np.ndarray
         origins = local @ rotation.T + position
         directions = np.broadcast_to(-rotation[:, 2], origins.shape).copy()
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    if camera.clip_start > 0:
+        origins += directions * (camera.clip_start / (directions @ -rotation[:, 2]))[:, None]
     return origins, directions
+
+
+def clip_distance(camera: Camera, directions: np.ndarray) -> np.ndarray | None:
+    """How far camera rays (unit ``directions`` (N, 3), from ``camera_rays``) go before the clip-end plane:
+    (N,) float64, or None when the camera does not clip (clip_end infinite)."""
+    if not np.isfinite(camera.clip_end):
+        return None
+    forward = -camera.world_from_camera[:3, 2]
+    forward = forward / np.linalg.norm(forward)
+    return (camera.clip_end - camera.clip_start) / (directions @ forward)
 
 
 def planar_depth(camera: Camera, points: np.ndarray) -> np.ndarray:

@@ -267,23 +267,41 @@ def _cap_polygons(light, position, kind, slot, origin, tangent, bitangent, norma
         out_count[n] = k_count
 
 
-def spot_mask(frames, light: np.ndarray, receiver_in_light: np.ndarray) -> np.ndarray:
-    """Cycles' spot cone attenuation (N,) float64 for receivers at ``receiver_in_light`` (N, 3) from the
-    lamp's centre: smoothstep((cos - cos_half) / smooth), cos the angle between the spot's local -Z and the
-    receiver's direction in the spot's scaled local frame; 1 for lights without a cone."""
-    cos_half = frames.spot_cos_half[light]
-    out = np.ones(len(light))
+def cone_attenuation(spot_frame: np.ndarray, cos_half: np.ndarray, smooth: np.ndarray,
+                     direction: np.ndarray) -> np.ndarray:
+    """Cycles' spot cone (N,) float64 on directions (N, 3) from the lamp (any length): smoothstep over
+    (cos - cos_half) / smooth, cos the angle between the spot's local -Z and the direction taken into its
+    scaled local frame (spot_frame (N, 3, 3)); 1 where cos_half (N,) is below -1 (no cone)."""
+    out = np.ones(len(direction))
     coned = np.flatnonzero(cos_half >= -1.0)
     if len(coned) == 0:
         return out
-    local = np.einsum("nij,nj->ni", frames.spot_frame[light[coned]], receiver_in_light[coned])
+    local = np.einsum("nij,nj->ni", spot_frame[coned], direction[coned])
     cosine = -local[:, 2] / np.maximum(np.linalg.norm(local, axis=1), 1e-300)
-    smooth = frames.spot_smooth[light[coned]]
     with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.clip((cosine - cos_half[coned]) / smooth, 0.0, 1.0)
-    t = np.where(smooth > 0, t, (cosine > cos_half[coned]).astype(np.float64))
+        t = np.clip((cosine - cos_half[coned]) / smooth[coned], 0.0, 1.0)
+    t = np.where(smooth[coned] > 0, t, (cosine > cos_half[coned]).astype(np.float64))
     out[coned] = t * t * (3.0 - 2.0 * t)
     return out
+
+
+def spread_weight(cosine: np.ndarray, spread: np.ndarray) -> np.ndarray:
+    """Cycles' Spread weight (N,) on directions at cos ``cosine`` (N,) from an area light's normal, for Spreads
+    ``spread`` (N,) radians: max(tan(s/2) - tan t, 0) normalised by 1 / (tan(s/2) - s/2) (3 / (s/2)^3 below
+    s/2 = 0.05); 0 behind the light, 1 for a Spread of pi."""
+    half = 0.5 * np.asarray(spread, np.float64)
+    norm = spread_normalisation(spread)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tangent = np.sqrt(np.maximum(1.0 - cosine ** 2, 0.0)) / np.maximum(cosine, 1e-300)
+        weight = np.maximum(np.tan(np.minimum(half, 0.5 * np.pi - 1e-9)) - tangent, 0.0) * norm
+    return np.where(half >= 0.5 * np.pi - 1e-12, 1.0, np.where(cosine > 0, weight, 0.0))
+
+
+def spot_mask(frames, light: np.ndarray, receiver_in_light: np.ndarray) -> np.ndarray:
+    """Cycles' spot cone attenuation (N,) float64 for receivers at ``receiver_in_light`` (N, 3) from the
+    lamp's centre (``cone_attenuation``); 1 for lights without a cone."""
+    return cone_attenuation(frames.spot_frame[light], frames.spot_cos_half[light], frames.spot_smooth[light],
+                            receiver_in_light)
 
 
 def too_close(frames, light: int, points: np.ndarray) -> np.ndarray:
@@ -559,9 +577,7 @@ def direction_spread(frames, light: np.ndarray, direction: np.ndarray, side: np.
     l = light[rows]
     emitted = -direction[rows] / np.maximum(np.linalg.norm(direction[rows], axis=1, keepdims=True), 1e-300)
     cosine = np.einsum("nk,nk->n", emitted, side[rows, None] * frames.normal[l])
-    tangent = np.sqrt(np.maximum(1.0 - cosine ** 2, 0.0)) / np.maximum(cosine, 1e-300)
-    tan_half = np.tan(np.minimum(0.5 * frames.spread[l], 0.5 * np.pi - 1e-9))
-    out[rows] = np.where(cosine > 0, np.maximum(tan_half - tangent, 0.0) * spread_normalisation(frames.spread[l]), 0.0)
+    out[rows] = spread_weight(cosine, frames.spread[l])
     return out
 
 

@@ -18,7 +18,7 @@ from .antialias import (PILOT_SAMPLES, allocate_samples, centre_suffices, covers
                         surface_strata)
 from .blockers import BlockerPolygons
 from .blocker_map import BlockerMap, build_blocker_map, flood_fill, reference_blocker_map
-from .camera import camera_rays, planar_depth, window_pixels
+from .camera import camera_rays, clip_distance, planar_depth, window_pixels
 from .emitters import FACING_HULL, near_receivers, nearby_geometry
 from .facing import too_close
 from .geometry import light_frames
@@ -31,6 +31,7 @@ from .silhouettes import MeshEdges, compile_kernels, pixel_batch_for, silhouette
 from .terminator import terminator_couples
 from .progress import Progress
 from .scene import LOBES_ALL, Scene
+from .seen_lights import OUTLINE_SAMPLES, draw_seen_lights
 from .settings import Settings
 from .surface import SurfacePoints, scene_centre, scene_extent, shade_hits
 from .trace import RayTracer
@@ -215,6 +216,13 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
     progress.begin_stage("Composing passes")
     output = _compose(scene, frames, surface, radiance, blockers, settings, (height, width), resolved)
     progress.end_stage()
+    if len(scene.seen):
+        # Lights the camera sees add their radiance over whatever lies behind them (Cycles: a light is no
+        # occluder for camera rays and adds no alpha).
+        drawn, outlined = draw_seen_lights(scene.seen, camera, tracer, settings, pixel_global, progress)
+        output.combined[..., :3] += drawn.reshape(height, width, 3).astype(np.float32)
+        counts = output.sample_count.reshape(-1)
+        counts[outlined] = np.maximum(counts[outlined], OUTLINE_SAMPLES)
     stats["rays_cast"] = tracer.n_rays_cast
     stats["seconds"] = time.perf_counter() - started
     stats["stage_seconds"] = dict(progress.stage_seconds)
@@ -252,7 +260,7 @@ def _primary(scene: Scene, tracer, extent: float, settings: Settings, progress: 
     for start in range(0, len(xs), settings.pixel_batch * 4):  # batches of pixels
         rows = slice(start, start + settings.pixel_batch * 4)
         origins, directions = camera_rays(camera, xs[rows], ys[rows])
-        hits = tracer.intersect(origins, directions, None)
+        hits = tracer.intersect(origins, directions, clip_distance(camera, directions))
         parts.append(shade_hits(scene, origins, directions, hits.index_triangle, hits.u, hits.v, extent))
         progress.advance(len(origins))
     progress.end_stage()

@@ -55,6 +55,9 @@ class Camera:
         ``(x0, y0, x1, y1)`` pixel window of the full frame to render (x to the right, y down from the top
         row, exclusive ends): a border or a tile. Random numbers use full-frame pixel coordinates, so a
         window renders exactly the pixels of the full frame.
+    clip_start, clip_end : float
+        Blender's Clip Start and End (m, along the viewing axis): as in Cycles, camera rays start on the
+        plane clip_start in front of the camera and end on the plane clip_end (``camera.camera_rays``).
     """
 
     world_from_camera: np.ndarray
@@ -63,9 +66,15 @@ class Camera:
     projection: str = "perspective"
     screen_window: np.ndarray = field(default_factory=lambda: np.array([-0.5, 0.5, -0.5, 0.5]))
     window: tuple[int, int, int, int] | None = None
+    clip_start: float = 0.0
+    clip_end: float = np.inf
 
     def __post_init__(self) -> None:
         self.world_from_camera = np.asarray(self.world_from_camera, dtype=np.float64).reshape(4, 4)
+        self.clip_start, self.clip_end = float(self.clip_start), float(self.clip_end)
+        if not (0.0 <= self.clip_start < self.clip_end):
+            raise ValueError(f"camera clip start {self.clip_start} and end {self.clip_end} must satisfy "
+                             "0 <= start < end")
         self.screen_window = np.asarray(self.screen_window, dtype=np.float64).reshape(4)
         self.width, self.height = int(self.width), int(self.height)
         if self.projection not in PROJECTIONS:
@@ -466,6 +475,111 @@ class Materials:
         return len(self.albedo)
 
 
+# Kinds of seen light.
+SEEN_RECTANGLE, SEEN_ELLIPSE, SEEN_DISK, SEEN_SPHERE, SEEN_SUN = 0, 1, 2, 3, 4
+
+
+@dataclass
+class SeenLights:
+    """The lights drawn where the camera sees them.
+
+    Attributes
+    ----------
+    kind : (N,) int64          SEEN_RECTANGLE, SEEN_ELLIPSE (area lights), SEEN_DISK, SEEN_SPHERE (point and
+                               spot lamps), SEEN_SUN.
+    centre : (N, 3) float64    an area light's or a lamp's centre (m); a sun's unit direction towards it.
+    axes : (N, 2, 3) float64   an area light's half-axes u, v (m): its points are centre + a u + b v with
+                               |a|, |b| <= 1 (rectangle) or a^2 + b^2 <= 1 (ellipse); it emits towards u x v.
+                               Zeros for the other kinds.
+    radius : (N,) float64      a lamp's radius (m), a sun's half-angle (radians); 0 for area lights.
+    radiance : (N, 3) float64  W m^-2 sr^-1 per colour channel, before Spread and cone.
+    spread : (N,) float64      an area light's Spread (radians; pi: none).
+    spot_frame, spot_cos_half, spot_smooth : a spot's cone, as ``scene.FacingLights`` holds it (cos_half
+                               below -1: no cone).
+    """
+
+    kind: np.ndarray
+    centre: np.ndarray
+    axes: np.ndarray
+    radius: np.ndarray
+    radiance: np.ndarray
+    spread: np.ndarray
+    spot_frame: np.ndarray
+    spot_cos_half: np.ndarray
+    spot_smooth: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.kind = np.asarray(self.kind, np.int64).reshape(-1)
+        count = len(self.kind)
+        self.centre = np.asarray(self.centre, np.float64).reshape(count, 3)
+        self.axes = np.asarray(self.axes, np.float64).reshape(count, 2, 3)
+        self.radius = np.asarray(self.radius, np.float64).reshape(count)
+        self.radiance = np.asarray(self.radiance, np.float64).reshape(count, 3)
+        self.spread = np.asarray(self.spread, np.float64).reshape(count)
+        self.spot_frame = np.asarray(self.spot_frame, np.float64).reshape(count, 3, 3)
+        self.spot_cos_half = np.asarray(self.spot_cos_half, np.float64).reshape(count)
+        self.spot_smooth = np.asarray(self.spot_smooth, np.float64).reshape(count)
+
+    def __len__(self) -> int:
+        return len(self.kind)
+
+    @classmethod
+    def empty(cls) -> "SeenLights":
+        return cls(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 2, 3)), np.zeros(0), np.zeros((0, 3)),
+                   np.zeros(0), np.zeros((0, 3, 3)), np.zeros(0), np.zeros(0))
+
+    @classmethod
+    def area(cls, centre, u, v, radiance, ellipse: bool = False, spread: float = np.pi) -> "SeenLights":
+        """One area light: centre (3,), half-axes u, v (3,) with u x v its emitting side, radiance (3,)."""
+        return cls([SEEN_ELLIPSE if ellipse else SEEN_RECTANGLE], [centre], [[u, v]], [0.0], [radiance], [spread],
+                   [np.eye(3)], [-2.0], [0.0])
+
+    @classmethod
+    def lamp(cls, centre, radius: float, intensity, soft_falloff: bool = True, spot=None) -> "SeenLights":
+        """One point or spot lamp: centre (3,), radius (m), intensity (3,) W/sr; ``spot`` = (frame (3, 3),
+        cos_half, smooth) as ``FacingLights.spot`` stores them, or None."""
+        radiance = np.asarray(intensity, np.float64) / (np.pi * radius * radius)
+        frame, cos_half, smooth = spot if spot is not None else (np.eye(3), -2.0, 0.0)
+        return cls([SEEN_DISK if soft_falloff else SEEN_SPHERE], [centre], np.zeros((1, 2, 3)), [radius], [radiance],
+                   [np.pi], [frame], [cos_half], [smooth])
+
+    @classmethod
+    def sun(cls, towards, half_angle: float, irradiance) -> "SeenLights":
+        """One sun: the direction towards it (3,), its half-angle (radians), irradiance (3,) W/m^2."""
+        towards = np.asarray(towards, np.float64)
+        radiance = np.asarray(irradiance, np.float64) / (np.pi * np.sin(half_angle) ** 2)
+        return cls([SEEN_SUN], [towards / np.linalg.norm(towards)], np.zeros((1, 2, 3)), [half_angle], [radiance],
+                   [np.pi], [np.eye(3)], [-2.0], [0.0])
+
+    @classmethod
+    def concat(cls, parts: list["SeenLights"]) -> "SeenLights":
+        if not parts:
+            return cls.empty()
+        return cls(*(np.concatenate([getattr(p, name) for p in parts]) for name in SEEN_ARRAYS))
+
+    def subset(self, keep) -> "SeenLights":
+        return SeenLights(*(getattr(self, name)[keep] for name in SEEN_ARRAYS))
+
+    def validated(self) -> tuple["SeenLights", int]:
+        """These lights without those of non-finite or degenerate values (a ValueError for negative
+        radiance); returns them and how many were dropped."""
+        if len(self) == 0:
+            return self, 0
+        if (self.radiance < 0).any():
+            raise ValueError("seen lights' radiance must not be negative")
+        arrays = [getattr(self, name).reshape(len(self), -1) for name in SEEN_ARRAYS[1:]]
+        finite = np.all([np.isfinite(a).all(axis=1) for a in arrays], axis=0)
+        doubled = np.linalg.norm(np.cross(self.axes[:, 0], self.axes[:, 1]), axis=1)
+        area = self.kind <= SEEN_ELLIPSE
+        sized = np.where(area, doubled > 0, (self.radius > 0) & ((self.kind != SEEN_SUN) | (self.radius < 0.5 * np.pi)))
+        keep = finite & sized & (self.radiance.max(axis=1) > 0)
+        return (self if keep.all() else self.subset(keep)), int((~keep).sum())
+
+
+SEEN_ARRAYS = ("kind", "centre", "axes", "radius", "radiance", "spread", "spot_frame", "spot_cos_half",
+               "spot_smooth")
+
+
 @dataclass
 class Scene:
     """Everything the core renders.
@@ -496,6 +610,9 @@ class Scene:
     hulls : EmitterHulls
         Closed convex mesh emitters, one light each (after ``facing``); their faces are also triangles of
         the scene (they block other lights), not rows of ``lights``.
+    seen : SeenLights
+        The lights the camera sees (Ray Visibility > Camera), drawn over the image (``seen_lights``); they
+        light nothing as such (their lighting is in ``lights`` and ``facing``).
     """
 
     triangles: np.ndarray
@@ -510,6 +627,7 @@ class Scene:
     terminator_offset: np.ndarray | None = None
     facing: FacingLights = field(default_factory=FacingLights.empty)
     hulls: EmitterHulls = field(default_factory=EmitterHulls.empty)
+    seen: SeenLights = field(default_factory=SeenLights.empty)
 
     def __post_init__(self) -> None:
         self.triangles = _as_float_array("triangles", self.triangles, (3, 3)) if len(np.asarray(self.triangles)) \
@@ -599,13 +717,19 @@ class Scene:
         if corner_uvs is not None:
             _require_finite("corner UVs", corner_uvs)
         parameters = dict(materials.arrays(), albedo=albedo, emission=emission, texture_index=texture_index)
+        if len(albedo) == 0:  # no surfaces (lights only): one black row, so that per-batch lookups stay valid
+            parameters = Materials(np.zeros((1, 3))).arrays()
         parameters["metallic"] = np.clip(parameters["metallic"], 0.0, 1.0)
         parameters["roughness"] = np.clip(parameters["roughness"], 0.0, 1.0)
         facing = _validated_facing(self.facing, progress)
         hulls = _validated_hulls(self.hulls, progress)
+        seen, dropped = self.seen.validated()
+        if dropped:
+            progress.warn(f"{dropped} light(s) seen by the camera have a zero size, no power or a NaN transform "
+                          "and are not drawn")
         return Scene(triangles, material_index, Materials(**parameters), lights, self.camera,
                      self.background, shading_normals, corner_uvs, list(self.textures), terminator_offset, facing,
-                     hulls)
+                     hulls, seen)
 
     @property
     def light_count(self) -> int:
@@ -625,7 +749,8 @@ class Scene:
             light_cast_shadow=self.lights.cast_shadow, light_spread=self.lights.spread, light_lobes=self.lights.lobes,
             world_from_camera=camera.world_from_camera, resolution=np.array([camera.width, camera.height]),
             projection=np.array(camera.projection), screen_window=camera.screen_window,
-            window=np.array(camera.window), background=self.background,
+            window=np.array(camera.window), clip=np.array([camera.clip_start, camera.clip_end]),
+            background=self.background,
         )
         if self.shading_normals is not None:
             arrays["shading_normals"] = self.shading_normals
@@ -636,6 +761,9 @@ class Scene:
         if len(self.facing):
             for name in FACING_ARRAYS:
                 arrays["facing_" + name] = getattr(self.facing, name)
+        if len(self.seen):
+            for name in SEEN_ARRAYS:
+                arrays["seen_" + name] = getattr(self.seen, name)
         if len(self.hulls):
             arrays.update(hull_triangles=self.hulls.triangles, hull_index=self.hulls.hull,
                           hull_radiance=self.hulls.radiance, hull_lobes=self.hulls.lobes)
@@ -656,9 +784,10 @@ class Scene:
                 raise ValueError(f"{path}: not a LazyVis scene, missing arrays {', '.join(missing)}")
             width, height = (int(v) for v in data["resolution"])
             window = tuple(int(v) for v in data["window"]) if "window" in data else None
+            clip = data["clip"] if "clip" in data else (0.0, np.inf)
             camera = Camera(data["world_from_camera"], width, height,
                             str(data["projection"]) if "projection" in data else "perspective",
-                            data["screen_window"], window)
+                            data["screen_window"], window, float(clip[0]), float(clip[1]))
             count = len(data["light_vertex_count"])
             lights = Lights(np.array(data["light_vertices"], dtype=np.float64).reshape(count, -1, 3) if count
                             else np.zeros((0, 3, 3)),
@@ -691,7 +820,9 @@ class Scene:
                        EmitterHulls(np.array(data["hull_triangles"]), np.array(data["hull_index"]),
                                     np.array(data["hull_radiance"]),
                                     np.array(data["hull_lobes"]) if "hull_lobes" in data else None)
-                       if "hull_radiance" in data else EmitterHulls.empty())
+                       if "hull_radiance" in data else EmitterHulls.empty(),
+                       SeenLights(*(np.array(data["seen_" + name]) for name in SEEN_ARRAYS))
+                       if "seen_kind" in data else SeenLights.empty())
 
 
 FACING_ARRAYS = ("kind", "centre", "radius", "intensity", "spot_frame", "spot_cos_half", "spot_smooth",

@@ -233,6 +233,32 @@ def hard_lamps(scene) -> None:
     add_light("SUN", rotation=(math.radians(30), 0.0, math.radians(-120)), energy=1.5, angle=0.0)
 
 
+def seen_lights(scene) -> None:
+    """Issue 14: lights the camera sees (Ray Visibility > Camera on), from a low camera that sees the sky: a
+    rectangle facing it (a box hides a corner), a disk facing away (its back is invisible), a point lamp
+    (Soft Falloff: a disk facing the camera), a sphere lamp, a spot turned towards the camera and a sun
+    low in the sky, over a floor they light."""
+    add_camera(scene, location=(0.0, -6.0, 1.2), rotation=(math.radians(84), 0.0, 0.0), lens=35.0)
+    bpy.ops.mesh.primitive_plane_add(size=30.0)
+    assign(bpy.context.object, node_material("Floor", Color=(0.6, 0.6, 0.6)))
+    bpy.ops.mesh.primitive_cube_add(size=0.3, location=(-1.0, -2.6, 1.45), rotation=(0.0, 0.0, 0.4))
+    assign(bpy.context.object, node_material("Box", Color=(0.3, 0.5, 0.7)))
+    lights = [
+        add_area_light(location=(-1.2, -1.0, 1.6), rotation=(math.radians(-90), 0.0, 0.2), shape="RECTANGLE",
+                       size=0.6, size_y=0.4, energy=30.0, color=(1.0, 0.9, 0.7)),
+        add_area_light(location=(1.3, 0.0, 1.8), rotation=(math.radians(90), 0.0, 0.0), shape="DISK", size=0.5,
+                       energy=40.0),
+        add_light("POINT", location=(0.4, -2.0, 0.9), energy=60.0, shadow_soft_size=0.15),
+        add_light("POINT", location=(-0.3, -3.0, 0.5), energy=20.0, shadow_soft_size=0.1, use_soft_falloff=False,
+                  color=(0.6, 0.8, 1.0)),
+        add_light("SPOT", location=(1.5, -2.5, 1.2), rotation=(math.radians(-90), 0.0, math.radians(-35)),
+                  energy=100.0, shadow_soft_size=0.12, spot_size=math.radians(60), spot_blend=0.4),
+        add_light("SUN", rotation=(math.radians(-82), 0.0, math.radians(8)), energy=2.0, angle=math.radians(6.0)),
+    ]
+    for light in lights:
+        light.visible_camera = True
+
+
 def matte(scene) -> None:
     """Every Principled BSDF at Specular IOR Level 0 (its diffuse base only, exact in LazyVis): the room's
     lights without LTC's glossy shape error (issue 16)."""
@@ -326,6 +352,8 @@ CASES = (
     # The same at LazyVis' defaults with the floor matte: the glossy-only lights then light nothing.
     Case("ray_visibility_matte", (64, 48), build=ray_visibility, prepare=matte),
     Case("room_matte", (96, 72), blend="sample_blends/room.blend", prepare=matte),
+    # Lights the camera sees, drawn through Blender's default pixel filter (their outlines anti-aliased).
+    Case("seen_lights", (64, 48), build=seen_lights, filter_width=DEFAULT_FILTER),
     # Issue 5: Blender's default pixel filter, LazyVis anti-aliasing with its defaults.
     Case("floating_boxes_filter1.5", (96, 96), blend="sample_blends/floating_boxes.blend", filter_width=DEFAULT_FILTER),
     Case("textured_filter1.5", (96, 96), blend="sample_blends/textured.blend", filter_width=DEFAULT_FILTER),
