@@ -176,3 +176,13 @@ def test_bad_seen_lights_are_dropped_with_one_warning():
     negative.radiance[:] = -1.0
     with pytest.raises(ValueError, match="seen lights"):
         render(seen_scene(negative, top_camera()), POINT)
+
+
+def test_a_scene_of_lights_only_renders_what_the_camera_sees_of_them():
+    """No mesh at all (so no material either), a light that lights nothing and is seen: the background and
+    the light, no error (pass 2 once indexed the empty material table)."""
+    lights = Lights.from_polygons([[(-1, -1, 1), (1, -1, 1), (1, 1, 1), (-1, 1, 1)]], [(1.0, 1.0, 1.0)])
+    scene = Scene(np.zeros((0, 3, 3)), np.zeros(0, np.int64), Materials(np.zeros((0, 3))), lights, top_camera(),
+                  np.array([0.1, 0.1, 0.1]), seen=rectangle())
+    image = render(scene, POINT).combined
+    assert np.isclose(image[..., 0].min(), 0.1) and np.isclose(image[..., 0].max(), 0.1 + RADIANCE[0])
