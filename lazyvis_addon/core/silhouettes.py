@@ -602,8 +602,10 @@ def compile_kernels() -> bool:
 # Bytes of pass 2's per-couple temporaries per vertex of the clipped light (its cone, its directions, the
 # analytic integrals over it): about 450 measured on suzanne_dense at 512 px (32-gon disks), rounded up.
 COUPLE_VERTEX_BYTES = 512
-# Fewer pixels per batch than this and per-batch overheads would dominate.
-MIN_PIXEL_BATCH = 256
+# Fewer pixels per batch than this and per-batch overheads would make the render far slower than its work:
+# the budget is then too small. (A mesh emitter of hundreds of faces, one light per triangle, takes batches
+# of about a hundred pixels within the default 2 GB: slow, but it renders.)
+MIN_PIXEL_BATCH = 16
 
 
 def pixel_batch_for(memory_budget_mb: float, threads: int, frames: LightFrames) -> int:
