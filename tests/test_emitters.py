@@ -2,13 +2,15 @@
 triangle, limits and bad input."""
 
 import dataclasses
+import importlib
 
 import numpy as np
 import pytest
 
 from lazyvis_addon.core import Camera, Lights, Materials, Scene, Settings, render
 from lazyvis_addon.core.demo_scenes import box_triangles, icosphere_triangles, look_at, quad_triangles
-from lazyvis_addon.core.emitters import (HULL_NEAR, HULL_TAKEN, closed_convex_faces, group_mesh_emitters,
+from lazyvis_addon.core.emitters import (HULL_NEAR, HULL_TAKEN, closed_convex_faces, crowded_hulls, group_mesh_emitters,
+                                         hull_faces_in_scene, hull_tables,
                                          hull_polygons, near_receivers, planar_convex_union)
 from lazyvis_addon.core.geometry import light_frames
 from lazyvis_addon.core.scene import EmitterHulls
@@ -210,3 +212,114 @@ def test_bad_hulls_are_refused_with_a_clear_message():
     dark = render(dataclasses.replace(scene, hulls=EmitterHulls(sphere, np.zeros(len(sphere), np.int64),
                                                                  [[0.0] * 3])), CENTRES)
     assert any("zero radiance" in w for w in dark.warnings)
+
+
+# -- non-convex emitters ---------------------------------------------------------------------------------
+
+def torus_triangles(centre=(0.1, 0.0, 1.6), major=0.5, minor=0.15, around=24, across=12, tilt=0.4):
+    """A torus (2 * around * across triangles) about the tilted z axis through ``centre``."""
+    c, s = np.cos(tilt), np.sin(tilt)
+    a, b = np.meshgrid(2 * np.pi * np.arange(around + 1) / around, 2 * np.pi * np.arange(across + 1) / across,
+                       indexing="ij")
+    x, y, w = (major + minor * np.cos(b)) * np.cos(a), (major + minor * np.cos(b)) * np.sin(a), minor * np.sin(b)
+    grid = np.stack([x, c * y - s * w, s * y + c * w], axis=-1) + np.asarray(centre)
+    return _quads(grid)
+
+
+def shade_triangles(centre=(-0.2, 0.1, 1.5), radius=0.35, height=0.4, around=20):
+    """A lamp shade: a truncated cone open at both ends (2 * around triangles), wider at the bottom."""
+    a = 2 * np.pi * np.arange(around + 1) / around
+    ring = lambda r, z: np.stack([r * np.cos(a), r * np.sin(a), np.full_like(a, z)], axis=-1)  # noqa: E731
+    grid = np.stack([ring(radius, -height / 2), ring(0.6 * radius, height / 2)], axis=1) + np.asarray(centre)
+    return _quads(grid)
+
+
+def _quads(grid):
+    """Two triangles per cell of a (m + 1, n + 1, 3) grid of points."""
+    p00, p10, p11, p01 = grid[:-1, :-1], grid[1:, :-1], grid[1:, 1:], grid[:-1, 1:]
+    first = np.stack([p00, p10, p11], axis=2).reshape(-1, 3, 3)
+    second = np.stack([p00, p11, p01], axis=2).reshape(-1, 3, 3)
+    return np.concatenate([first, second])
+
+
+def emitter_over_floor(emitter, grouped: bool, resolution=28, extra=None):
+    """A floor, a slab under the emitter and the emitter (black, emitting RADIANCE) seen from above and aside."""
+    floor = quad_triangles([(-4, -4, 0), (4, -4, 0), (4, 4, 0), (-4, 4, 0)])
+    slab = quad_triangles([(-0.5, -0.15, 0.3), (0.5, -0.15, 0.3), (0.5, 0.15, 0.3), (-0.5, 0.15, 0.3)])
+    geometry = [floor, slab] + ([extra] if extra is not None else [])
+    triangles = np.concatenate(geometry + [emitter])
+    material = np.concatenate([np.zeros(sum(len(g) for g in geometry), np.int64), np.ones(len(emitter), np.int64)])
+    materials = Materials(np.array([[0.8, 0.8, 0.8], [0.0, 0.0, 0.0]]), np.array([[0.0] * 3, [RADIANCE] * 3]))
+    lights, hulls = emitter_lights(emitter), EmitterHulls.empty()
+    if grouped:
+        lights, hulls, _, _ = group_mesh_emitters(lights, np.zeros(len(emitter), np.int64))
+    camera = Camera.perspective(look_at((0.4, -4.0, 3.2), (0.0, 0.0, 0.6)), resolution, resolution, np.radians(50))
+    return Scene(triangles, material, materials, lights, camera, hulls=hulls)
+
+
+PER_TRIANGLE = dataclasses.replace(CENTRES, memory_budget_mb=4096)
+
+
+@pytest.mark.parametrize("shape", ["torus", "shade"])
+def test_a_non_convex_emitter_is_two_lights_and_renders_as_its_triangles_do(shape, monkeypatch):
+    """A torus (closed, a hole) and a lamp shade (open at both ends) become one hull each: a near light of
+    radiance L and a far one of -L, the directions through the emitter's hull less those that meet nothing
+    (through the hole, the shade's openings). The image equals one light per triangle, the exact path, to
+    rounding; without the far light it would not (the floor under the hole would be too bright)."""
+    emitter = torus_triangles() if shape == "torus" else shade_triangles()
+    scene = emitter_over_floor(emitter, grouped=True)
+    assert len(scene.lights) == 0 and len(scene.hulls) == 1 and not scene.hulls.convex[0]
+    frames = light_frames(scene.lights, hulls=scene.hulls)
+    assert frames.hull_far.sum() == 6 and (frames.radiance[frames.hull_far] < 0).all()
+    two = render(scene, CENTRES)
+    exact = render(emitter_over_floor(emitter, grouped=False), PER_TRIANGLE)
+    assert not any("none of its light" in w or "one light per face" in w for w in two.warnings)
+    lit = exact.combined[..., :3] > 1e-6
+    assert lit.mean() > 0.5
+    ratio = two.combined[..., :3][lit] / exact.combined[..., :3][lit]
+    assert np.abs(ratio - 1).max() < 1e-5
+    # The far light takes out what passes through: without it the floor is too bright somewhere.
+    render_module = importlib.import_module("lazyvis_addon.core.render")  # (the package exports the function)
+    original = render_module.light_frames
+
+    def near_only(*args, **kwargs):
+        frames = original(*args, **kwargs)
+        frames.radiance[frames.hull_far] = 0.0
+        return frames
+
+    monkeypatch.setattr(render_module, "light_frames", near_only)
+    brighter = render(scene, CENTRES).combined[..., :3][lit] / exact.combined[..., :3][lit]
+    assert brighter.max() > 1.05
+
+
+def test_other_geometry_inside_a_non_convex_emitter_keeps_it_one_light_per_face():
+    """A box inside the torus' hole may stand behind the emitter along a ray, which the two lights cannot
+    tell: the emitter stays one light per triangle, with one warning, and the image is the exact one."""
+    emitter = torus_triangles(tilt=0.0)
+    plug = box_triangles((0.1, 0.0, 1.6), 0.15, 0.1)
+    scene = emitter_over_floor(emitter, grouped=True, extra=plug)
+    out = render(scene, CENTRES)
+    assert sum("one light per face" in w for w in out.warnings) == 1
+    exact = render(emitter_over_floor(emitter, grouped=False, extra=plug), PER_TRIANGLE)
+    np.testing.assert_allclose(out.combined, exact.combined, rtol=1e-6, atol=1e-7)
+    # A floor the emitter rests on touches it without crowding it.
+    resting = torus_triangles(centre=(0.1, 0.0, 0.15), tilt=0.0)
+    tables = hull_tables(EmitterHulls(resting, np.zeros(len(resting), np.int64), [[1.0] * 3], convex=[False]))
+    floor = quad_triangles([(-4, -4, 0), (4, -4, 0), (4, 4, 0), (-4, 4, 0)])
+    triangles = np.concatenate([floor, resting])
+    part_of = hull_faces_in_scene(tables, triangles)
+    np.testing.assert_array_equal(part_of, [-1, -1] + [0] * len(resting))
+    assert not crowded_hulls(tables, triangles, part_of)[0]
+    inner = box_triangles((0.1, 0.0, 0.15), 0.15)  # in its hole
+    assert crowded_hulls(tables, np.concatenate([triangles, inner]), np.concatenate([part_of, [-1] * len(inner)]))[0]
+
+
+def test_the_other_integrators_take_a_non_convex_emitter_face_by_face():
+    from lazyvis_addon.core.render import _emitters_as_triangles_where_needed
+    from lazyvis_addon.core.progress import Progress
+    scene = emitter_over_floor(torus_triangles(), grouped=True).validated()
+    kept = _emitters_as_triangles_where_needed(scene, CENTRES, Progress())
+    assert len(kept.hulls) == 1 and len(kept.lights) == 0
+    other = _emitters_as_triangles_where_needed(scene, Settings(integrator="reference"), Progress())
+    assert len(other.hulls) == 0 and len(other.lights) == len(scene.hulls.triangles)
+    assert other.lights.two_sided.all()

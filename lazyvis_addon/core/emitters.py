@@ -23,16 +23,27 @@ A closed emitter counts as convex within NEAR_CONVEX of its radius: a subdivided
 fold by a fraction of a percent, and its outline is then its vertices' hull's (measured on a public scene's
 1,920-face sphere: 1.7e-4 of the light of one light per triangle at most).
 
+A **non-convex** emitter E (a torus, a lamp shade, open or closed; two-sided, of one radiance L) is seen
+from x in the directions whose first surface is E. Those directions lie in the cone from x through the
+convex hull of E's vertices, which two parallel supporting planes bound: the near one, between x and E (the
+plane x takes, as for a convex emitter), and the far one beyond E. The cone's section on each is the 2-D
+hull of all E's vertices projected there. Two lights integrate over it: the near one of radiance L (its
+rays end before E: the directions no other geometry blocks) and the far one of radiance -L (its rays pass
+E: the directions that meet nothing at all, through the hole of a torus). Their sum is L over the
+directions that meet E and nothing before it: exact when no other geometry lies between the planes inside
+the cone (``crowded_hulls`` keeps emitters with other geometry inside their hull one light per triangle;
+beside it, ``nearby_geometry`` warns), at the cost of two lights.
+
 Limits, stated where they apply: geometry between a hull and the plane a receiver takes (within about a
 radius of the emitter's surface) blocks none of its light, and where it pierces that plane inside the light
 pass 2's silhouettes shade it wrong (issue 13's xfail test; ``nearby_geometry`` warns of both); a receiver
 inside the box the six planes bound (within about 1.7 radii of the centre) that takes no plane gets none of
-the hull's light (``near_receivers`` counts them for a warning). Non-convex emitters (a torus, a lamp shade
-open at both ends) stay one light per triangle.
+the hull's light (``near_receivers`` counts them for a warning); so does a non-convex emitter's own surface.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -47,6 +58,9 @@ FACING_HULL = 3
 # A receiver's polygon must lie within this many bounding radii of the hull's centre's foot on the plane:
 # the frame's own square of that half-width holds every receiver's (the conservative tests read it).
 HOLDER_REACH = 3.0
+# The same for a non-convex emitter's far plane, whose sections are larger (receivers nearer than about a
+# radius to the near plane take another plane, or none).
+FAR_HOLDER_REACH = 3.0 * HOLDER_REACH
 # Relative tolerance of the planar test (times the emitter's size).
 CONVEX_EPS = 1e-7
 # A closed emitter is grouped as convex when no vertex lies further in front of a face than this fraction of
@@ -55,6 +69,12 @@ CONVEX_EPS = 1e-7
 NEAR_CONVEX = 1e-2
 # Far views sampled for a hull's widest silhouette (its polygons' vertex budget, ``hull_tables``).
 WIDTH_VIEWS = 96
+# A non-convex emitter of at least this many faces becomes one hull (two lights); fewer stay one light per
+# triangle.
+NONCONVEX_MIN_FACES = 8
+# Other geometry closer to a non-convex emitter than this (relative to its radius, and not separated from it by
+# a plane) crowds it (``crowded_hulls``); a floor it rests on touches it without crowding it.
+CROWDED_MARGIN = 1e-4
 
 
 # ------------------------------------------------------------------------------------------------------
@@ -73,7 +93,8 @@ def group_mesh_emitters(lights: Lights, part: np.ndarray) -> tuple[Lights, Emitt
     Returns
     -------
     lights : Lights              the lights not grouped, then one polygon per planar convex emitter.
-    hulls : EmitterHulls         one row per closed convex emitter (its faces wound outward).
+    hulls : EmitterHulls         one row per closed convex emitter (its faces wound outward), then one per
+                                 other emitter of NONCONVEX_MIN_FACES faces or more (``convex`` False).
     light_source, hull_source    (L',), (H,) int64: the input light each output light or hull stands for
                                  (its first triangle; for names).
     """
@@ -82,7 +103,7 @@ def group_mesh_emitters(lights: Lights, part: np.ndarray) -> tuple[Lights, Emitt
         raise ValueError(f"part has {len(part)} entries for {len(lights)} lights")
     grouped = (part >= 0) & (np.asarray(lights.vertex_count) == 3)
     keep_rows = [np.flatnonzero(~grouped)]
-    polygons, polygon_rows, hull_faces, hull_rows = [], [], [], []
+    polygons, polygon_rows, hull_faces, hull_rows, other_faces, other_rows = [], [], [], [], [], []
     order = np.flatnonzero(grouped)
     order = order[np.argsort(part[order], kind="stable")]
     bounds = np.flatnonzero(np.diff(part[order])) + 1
@@ -100,6 +121,10 @@ def group_mesh_emitters(lights: Lights, part: np.ndarray) -> tuple[Lights, Emitt
                 hull_faces.append(outward)
                 hull_rows.append(rows[0])
                 continue
+        if len(rows) >= NONCONVEX_MIN_FACES:
+            other_faces.append(triangles)
+            other_rows.append(rows[0])
+            continue
         keep_rows.append(rows)
     kept = np.sort(np.concatenate(keep_rows))
     base = lights.subset(kept)
@@ -108,10 +133,12 @@ def group_mesh_emitters(lights: Lights, part: np.ndarray) -> tuple[Lights, Emitt
         merged.cast_shadow = np.asarray(lights.cast_shadow, bool)[polygon_rows]
         merged.lobes = np.asarray(lights.lobes, np.int64)[polygon_rows]
         base = Lights.concat([base, merged])
+    hull_faces, hull_rows = hull_faces + other_faces, hull_rows + other_rows
     hulls = EmitterHulls(np.concatenate(hull_faces) if hull_faces else np.zeros((0, 3, 3)),
                          np.repeat(np.arange(len(hull_faces)), [len(f) for f in hull_faces]),
                          lights.radiance[hull_rows] if hull_rows else np.zeros((0, 3)),
-                         np.asarray(lights.lobes, np.int64)[hull_rows] if hull_rows else None)
+                         np.asarray(lights.lobes, np.int64)[hull_rows] if hull_rows else None,
+                         np.arange(len(hull_faces)) < len(hull_faces) - len(other_faces))
     return base, hulls, np.concatenate([kept, np.array(polygon_rows, np.int64)]), np.array(hull_rows, np.int64)
 
 
@@ -204,6 +231,9 @@ class HullTables:
                                                 the foot of the centre on the plane.
     plane_support (H, 6)                        the plane's distance from the centre, m.
     width (H,) int64                            vertices budgeted per receiver polygon.
+    convex (H,) bool                            ``EmitterHulls.convex``: False, the polygon is the outline of
+                                                all the vertices (no edges are listed).
+    face_vertices (Hf, 3, 3)                    the faces (to find them among the scene's triangles).
     """
 
     vertex: np.ndarray
@@ -222,6 +252,8 @@ class HullTables:
     plane_bitangent: np.ndarray
     plane_support: np.ndarray
     width: np.ndarray
+    convex: np.ndarray
+    face_vertices: np.ndarray
 
     def __len__(self) -> int:
         return len(self.radius)
@@ -244,28 +276,33 @@ def hull_tables(hulls: EmitterHulls) -> HullTables:
     centre, radius, support, width = [], [], [], []
     for row in range(len(hulls)):  # emitters: a handful
         faces = hulls.faces_of(row)
-        if closed_convex_faces(faces) is None:
+        convex = bool(hulls.convex[row])
+        if convex and closed_convex_faces(faces) is None:
             raise ValueError(f"emitter hull {row} is not a closed convex mesh")
         points, vertex = np.unique(faces.reshape(-1, 3), axis=0, return_inverse=True)
         vertex = vertex.reshape(-1, 3)
         normal = np.cross(faces[:, 1] - faces[:, 0], faces[:, 2] - faces[:, 0])
-        normal /= np.linalg.norm(normal, axis=1, keepdims=True)
-        directed = np.stack([vertex, np.roll(vertex, -1, axis=1)], axis=-1).reshape(-1, 2)
-        face_of = np.repeat(np.arange(len(faces)), 3)
-        n = len(points)
-        key = directed[:, 0] * n + directed[:, 1]
-        order = np.argsort(key)
-        forward = directed[:, 0] < directed[:, 1]
-        # Each undirected edge once: its forward half, and the face of the reverse half.
-        twin = order[np.searchsorted(key[order], directed[:, 1] * n + directed[:, 0])]
-        edge_vertex = directed[forward]
-        edge_face = np.stack([face_of[forward], face_of[twin[forward]]], axis=1)
+        normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+        if convex:
+            directed = np.stack([vertex, np.roll(vertex, -1, axis=1)], axis=-1).reshape(-1, 2)
+            face_of = np.repeat(np.arange(len(faces)), 3)
+            n = len(points)
+            key = directed[:, 0] * n + directed[:, 1]
+            order = np.argsort(key)
+            forward = directed[:, 0] < directed[:, 1]
+            # Each undirected edge once: its forward half, and the face of the reverse half.
+            twin = order[np.searchsorted(key[order], directed[:, 1] * n + directed[:, 0])]
+            edge_vertex = directed[forward]
+            edge_face = np.stack([face_of[forward], face_of[twin[forward]]], axis=1)
+        else:  # the outline of all the vertices: no rim to find
+            edge_vertex = np.zeros((0, 2), np.int64)
+            edge_face = np.zeros((0, 2), np.int64)
         mean = points.mean(axis=0)
         reach = float(np.linalg.norm(points - mean, axis=1).max())
         centre.append(mean)
         radius.append(reach)
         support.append(((points - mean) @ normals.T).max(axis=0))
-        width.append(_silhouette_budget(normal, edge_face))
+        width.append(_silhouette_budget(normal, edge_face) if convex else _outline_budget(points))
         parts["vertex"].append(points)
         parts["face_normal"].append(normal)
         parts["face_offset"].append(np.einsum("kj,kj->k", normal, faces[:, 0]))
@@ -285,16 +322,36 @@ def hull_tables(hulls: EmitterHulls) -> HullTables:
                       np.array(starts["edge"], np.int64), centre, np.array(radius).reshape(count),
                       centre[:, None] + support[..., None] * normals[None], np.broadcast_to(normals, (count, 6, 3)).copy(),
                       np.broadcast_to(tangents, (count, 6, 3)).copy(), np.broadcast_to(bitangents, (count, 6, 3)).copy(),
-                      support, np.array(width, np.int64).reshape(count))
+                      support, np.array(width, np.int64).reshape(count), np.asarray(hulls.convex, bool).copy(),
+                      np.asarray(hulls.triangles, np.float64))
+
+
+def _fibonacci_views(count: int) -> np.ndarray:
+    """``count`` unit directions (count, 3) spread evenly over the sphere."""
+    k = np.arange(count) + 0.5
+    z = 1.0 - 2.0 * k / count
+    phi = math.pi * (3.0 - math.sqrt(5.0)) * k
+    return np.stack([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z], axis=1)
+
+
+def _outline_budget(points: np.ndarray) -> int:
+    """Vertices to budget for a non-convex emitter's receiver polygons: the most vertices the outline of its
+    points (V, 3) has over WIDTH_VIEWS far views, with the margin of ``_silhouette_budget``."""
+    widest = 3
+    chain = np.empty(2 * len(points), np.int64)
+    for view in _fibonacci_views(WIDTH_VIEWS):  # far views: a hundred
+        helper = np.eye(3)[np.argmin(np.abs(view))]
+        u = np.cross(view, helper)
+        u /= np.linalg.norm(u)
+        flat = np.ascontiguousarray(np.stack([points @ u, points @ np.cross(view, u)], axis=1))
+        widest = max(widest, _convex_hull_indices(flat, len(flat), chain))
+    return int(4 * math.ceil((1.25 * widest + 8) / 4))
 
 
 def _silhouette_budget(face_normal: np.ndarray, edge_face: np.ndarray) -> int:
     """Vertices to budget for a hull's receiver polygons: its widest silhouette over WIDTH_VIEWS far views
     (Fibonacci directions), with a margin; a multiple of 4 (the holder square's sides)."""
-    k = np.arange(WIDTH_VIEWS) + 0.5
-    z = 1.0 - 2.0 * k / WIDTH_VIEWS
-    phi = math.pi * (3.0 - math.sqrt(5.0)) * k
-    views = np.stack([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z], axis=1)
+    views = _fibonacci_views(WIDTH_VIEWS)
     front = (face_normal @ views.T) > 0        # (F, D): far views see the faces turned towards them
     edges = (front[edge_face[:, 0]] != front[edge_face[:, 1]]).sum(axis=0)
     return int(4 * math.ceil((1.25 * edges.max() + 8) / 4))
@@ -306,16 +363,24 @@ def hull_frames(tables: HullTables, radiance: np.ndarray, lobes: np.ndarray | No
     receiver's polygon (W = the widest hull's budget); vertex_count (K,) each hull's budget; radiance (K, 3);
     two_sided (K,) False; area (K,); kind FACING_HULL, slot 0..5, source the hull (K,) int64; cap_centre
     (K, 3), cap_radius (K,); spot_frame, spot_cos_half, spot_smooth; cast_shadow; spread; lobes (K,) from the
-    hulls' ``lobes`` (H,) (None: all)."""
+    hulls' ``lobes`` (H,) (None: all); hull_far (K,) bool.
+
+    A non-convex hull's six near lights are followed, after every hull's, by its six far lights: radiance
+    -L, each in the supporting plane beyond the hull parallel to its near light's (the module docstring)."""
     count = len(tables)
-    source = np.repeat(np.arange(count), 6)
-    slot = np.tile(np.arange(6), count)
+    other = np.flatnonzero(~tables.convex)
+    source = np.concatenate([np.repeat(np.arange(count), 6), np.repeat(other, 6)])
+    slot = np.tile(np.arange(6), count + len(other))
+    far = np.arange(len(source)) >= 6 * count
+    sign = np.where(far, -1.0, 1.0)
     width = int(tables.width.max()) if count else 4
-    origin = tables.plane_origin.reshape(-1, 3)
-    normal = tables.plane_normal.reshape(-1, 3)
-    tangent = tables.plane_tangent.reshape(-1, 3)
-    bitangent = tables.plane_bitangent.reshape(-1, 3)
-    reach = HOLDER_REACH * tables.radius[source]
+    normal = tables.plane_normal[source, slot]
+    # The far plane: normal n_j too (x stands above it), through the hull's lowest point along n_j.
+    origin = np.where(far[:, None], tables.centre[source] - tables.plane_support[source, slot ^ 1][:, None] * normal,
+                      tables.plane_origin[source, slot])
+    tangent = tables.plane_tangent[source, slot]
+    bitangent = tables.plane_bitangent[source, slot]
+    reach = np.where(far, FAR_HOLDER_REACH, HOLDER_REACH) * tables.radius[source]
     uv = np.zeros((len(source), width, 2))
     vertex_count = tables.width[source]
     for budget in np.unique(vertex_count):  # hull budgets: a handful
@@ -325,7 +390,7 @@ def hull_frames(tables: HullTables, radiance: np.ndarray, lobes: np.ndarray | No
         uv[rows, budget:] = uv[rows, budget - 1:budget]
     vertices = origin[:, None] + uv[..., :1] * tangent[:, None] + uv[..., 1:] * bitangent[:, None]
     return dict(origin=origin, tangent=tangent, bitangent=bitangent, normal=normal, uv=uv, vertices=vertices,
-                vertex_count=vertex_count, radiance=np.asarray(radiance, np.float64)[source],
+                vertex_count=vertex_count, radiance=sign[:, None] * np.asarray(radiance, np.float64)[source],
                 two_sided=np.zeros(len(source), bool), area=(2.0 * reach) ** 2,
                 kind=np.full(len(source), FACING_HULL, np.int64), slot=slot, source=source,
                 cap_centre=tables.centre[source], cap_radius=tables.radius[source],
@@ -333,7 +398,7 @@ def hull_frames(tables: HullTables, radiance: np.ndarray, lobes: np.ndarray | No
                 spot_cos_half=np.full(len(source), -2.0), spot_smooth=np.zeros(len(source)),
                 cast_shadow=np.ones(len(source), bool), spread=np.full(len(source), np.pi),
                 lobes=np.full(len(source), LOBES_ALL, np.int64) if lobes is None
-                else np.asarray(lobes, np.int64)[source])
+                else np.asarray(lobes, np.int64)[source], hull_far=far)
 
 
 def _square_perimeter(points: int) -> np.ndarray:
@@ -382,7 +447,10 @@ def hull_polygons(frames, light: np.ndarray, position: np.ndarray
                    tables.vertex, tables.vertex_start, tables.face_normal, tables.face_offset, tables.face_start,
                    tables.edge_vertex, tables.edge_face, tables.edge_start, tables.centre, tables.radius,
                    tables.plane_origin, tables.plane_normal, tables.plane_tangent, tables.plane_bitangent,
-                   tables.plane_support, tables.width, HOLDER_REACH, uv, count, status, taken, front, rim)
+                   tables.plane_support, tables.width, tables.convex,
+                   np.ascontiguousarray(frames.hull_far if getattr(frames, "hull_far", None) is not None
+                                        else np.zeros(len(frames.source), bool)),
+                   HOLDER_REACH, FAR_HOLDER_REACH, uv, count, status, taken, front, rim)
     return uv, count, status, taken
 
 
@@ -416,15 +484,19 @@ def _silhouette_vertices(r, h, vertex_start, face_normal, face_offset, face_star
 
 
 @njit(cache=True, nogil=True)
-def _project_silhouette(r, h, j, rim, m, vertex, radius, plane_origin, plane_normal, plane_tangent,
-                        plane_bitangent, plane_support, reach, out):
-    """The outline of the rim vertices ``rim[:m]`` seen from r, projected on hull h's plane j, into ``out``
-    (budget, 2); returns its vertex count, -1 where a point falls outside the holder, -2 where the outline
-    has more vertices than the budget."""
+def _project_silhouette(r, h, j, rim, m, vertex, radius, centre, plane_origin, plane_normal, plane_tangent,
+                        plane_bitangent, plane_support, reach, far, out):
+    """The outline of the rim vertices ``rim[:m]`` seen from r, projected on hull h's plane j (``far``: the
+    parallel supporting plane beyond the hull, ``hull_frames``), into ``out`` (budget, 2); returns its vertex
+    count, -1 where a point falls outside the holder (``reach`` radii), -2 where the outline has more
+    vertices than the budget."""
+    origin = np.empty(3)
+    for k in range(3):
+        origin[k] = centre[h, k] - plane_support[h, j ^ 1] * plane_normal[h, j, k] if far else plane_origin[h, j, k]
     height = 0.0
     ru, rv = 0.0, 0.0
     for k in range(3):
-        rel = r[k] - plane_origin[h, j, k]
+        rel = r[k] - origin[k]
         height += rel * plane_normal[h, j, k]
         ru += rel * plane_tangent[h, j, k]
         rv += rel * plane_bitangent[h, j, k]
@@ -434,11 +506,12 @@ def _project_silhouette(r, h, j, rim, m, vertex, radius, plane_origin, plane_nor
         v = rim[i]
         hv, vu, vv = 0.0, 0.0, 0.0
         for k in range(3):
-            rel = vertex[v, k] - plane_origin[h, j, k]
+            rel = vertex[v, k] - origin[k]
             hv += rel * plane_normal[h, j, k]
             vu += rel * plane_tangent[h, j, k]
             vv += rel * plane_bitangent[h, j, k]
-        hv = min(hv, 0.0)  # behind the supporting plane (rounding aside)
+        # Behind the near supporting plane, in front of the far one (rounding aside).
+        hv = max(hv, 0.0) if far else min(hv, 0.0)
         t = height / (height - hv)
         pu, pv = ru + t * (vu - ru), rv + t * (vv - rv)
         if abs(pu) > limit or abs(pv) > limit:
@@ -494,9 +567,11 @@ def _convex_hull_indices(points, m, chain, tolerance=0.0):
 @njit(cache=True, nogil=True)
 def _hull_polygons(light, position, source, slot, vertex, vertex_start, face_normal, face_offset, face_start,
                    edge_vertex, edge_face, edge_start, centre, radius, plane_origin, plane_normal, plane_tangent,
-                   plane_bitangent, plane_support, width, reach, out_uv, out_count, out_status, out_taken, front, rim):
+                   plane_bitangent, plane_support, width, convex, far_row, reach, far_reach, out_uv, out_count,
+                   out_status, out_taken, front, rim):
     heights = np.empty(6)
     r = np.empty(3)
+    far_uv = np.empty((out_uv.shape[1], 2))
     for n in range(len(light)):
         l = light[n]
         h = source[l]
@@ -513,8 +588,13 @@ def _hull_polygons(light, position, source, slot, vertex, vertex_start, face_nor
         order = np.argsort(-heights)
         if not heights[order[0]] > 1e-9 * radius[h]:
             continue  # inside the planes' box: no plane takes r
-        m = _silhouette_vertices(r, h, vertex_start, face_normal, face_offset, face_start, edge_vertex, edge_face,
-                                 edge_start, front, rim)
+        if convex[h]:
+            m = _silhouette_vertices(r, h, vertex_start, face_normal, face_offset, face_start, edge_vertex,
+                                     edge_face, edge_start, front, rim)
+        else:  # the outline of all the vertices (r lies outside their hull: above a supporting plane)
+            m = vertex_start[h + 1] - vertex_start[h]
+            for v in range(m):
+                rim[v] = vertex_start[h] + v
         if m < 3:
             continue
         taken = -1
@@ -522,8 +602,18 @@ def _hull_polygons(light, position, source, slot, vertex, vertex_start, face_nor
             j = order[i]
             if not heights[j] > 1e-9 * radius[h]:
                 break
-            count = _project_silhouette(r, h, j, rim, m, vertex, radius, plane_origin, plane_normal, plane_tangent,
-                                        plane_bitangent, plane_support, reach, out_uv[n, :width[h]])
+            count = _project_silhouette(r, h, j, rim, m, vertex, radius, centre, plane_origin, plane_normal,
+                                        plane_tangent, plane_bitangent, plane_support, reach, False,
+                                        out_uv[n, :width[h]])
+            if count >= 3 and not convex[h]:  # a non-convex hull's far section must fit too
+                far_count = _project_silhouette(r, h, j, rim, m, vertex, radius, centre, plane_origin, plane_normal,
+                                                plane_tangent, plane_bitangent, plane_support, far_reach, True,
+                                                far_uv[:width[h]])
+                if far_count < 3:
+                    count = far_count
+                elif far_row[l]:
+                    count = far_count
+                    out_uv[n, :count] = far_uv[:count]
             if count == -2:
                 out_status[n] = HULL_OVERFLOW
                 break
@@ -552,19 +642,26 @@ def taken_hull_planes(frames, position: np.ndarray) -> np.ndarray:
     return out
 
 
-def near_receivers(frames, points: np.ndarray) -> dict[int, int]:
+def near_receivers(frames, points: np.ndarray, triangle: np.ndarray | None = None,
+                   part_of: np.ndarray | None = None) -> dict[int, int]:
     """For each hull (by row), how many of ``points`` (N, 3) get none of its light (HULL_NEAR or
-    HULL_OVERFLOW from every plane), excluding points inside it; only hulls with some."""
+    HULL_OVERFLOW from every plane), excluding points inside it (or, for a non-convex hull, on its own faces:
+    ``triangle`` (N,) the points' triangles, ``part_of`` from ``hull_faces_in_scene``); only hulls with
+    some."""
     out = {}
     if frames.hulls is None or len(frames.hulls) == 0 or len(points) == 0:
         return out
     tables = frames.hulls
-    first_rows = np.flatnonzero((frames.kind == FACING_HULL) & (frames.slot == 0))
+    first_rows = np.flatnonzero((frames.kind == FACING_HULL) & (frames.slot == 0) & (frames.radiance.max(axis=1) > 0))
     for light in first_rows:  # hulls: a handful
         h = int(frames.source[light])
         faces = slice(tables.face_start[h], tables.face_start[h + 1])
         on_or_inside = np.zeros(len(points), bool)
-        for start in range(0, len(points), 4096):  # batches of points, bounding the (4096, F) heights
+        if not tables.convex[h]:
+            if triangle is not None and part_of is not None:
+                on_or_inside = part_of[triangle] == h
+            faces = slice(0, 0)
+        for start in range(0, len(points), 4096) if faces.stop > faces.start else []:  # batches of points
             height = points[start:start + 4096] @ tables.face_normal[faces].T - tables.face_offset[faces]
             # Float32 positions of the emitter's own surface lie within rounding of its faces.
             tolerance = 1e-5 * (tables.radius[h] + np.abs(tables.centre[h]).max())
@@ -577,10 +674,12 @@ def near_receivers(frames, points: np.ndarray) -> dict[int, int]:
     return out
 
 
-def nearby_geometry(tables: HullTables, triangles: np.ndarray, batch: int = 65536) -> np.ndarray:
+def nearby_geometry(tables: HullTables, triangles: np.ndarray, part_of: np.ndarray | None = None,
+                    batch: int = 65536) -> np.ndarray:
     """(H,) bool: hulls with a scene triangle (T, 3, 3) partly within the reach of the region their planes'
     rays cross behind the plane (HOLDER_REACH radii about the centre, a ball of sqrt(2 HOLDER_REACH^2 + 4)
-    radii holding it), not inside the hull: geometry there may block some of the light unseen."""
+    radii holding it), not inside the hull (not a non-convex hull's own face: ``part_of``, from
+    ``hull_faces_in_scene``): geometry there may block some of the light unseen."""
     out = np.zeros(len(tables), bool)
     for h in range(len(tables)):  # hulls: a handful
         ball = math.sqrt(2.0 * HOLDER_REACH ** 2 + 4.0) * tables.radius[h]
@@ -594,12 +693,91 @@ def nearby_geometry(tables: HullTables, triangles: np.ndarray, batch: int = 6553
                                     + np.maximum(tables.centre[h] - high, 0.0) ** 2).sum(axis=1) < ball ** 2)
             if len(close) == 0:
                 continue
+            if not tables.convex[h]:
+                own = part_of[start:start + batch][close] == h if part_of is not None else np.zeros(len(close), bool)
+                if not own.all():
+                    out[h] = True
+                    break
+                continue
             corners = part[close].reshape(-1, 3)
             inside = ((corners @ normal.T - offset) <= tolerance).all(axis=1).reshape(-1, 3).all(axis=1)
             if not inside.all():
                 out[h] = True
                 break
     return out
+
+
+def hull_faces_in_scene(tables: HullTables | None, triangles: np.ndarray) -> np.ndarray:
+    """(T,) int64: for each scene triangle (T, 3, 3), the non-convex hull it is a face of, -1 for none.
+    Matched by their exact coordinates (a hull's faces are copies of the scene's triangles), whatever the
+    order of the corners."""
+    part_of = np.full(len(triangles), -1, np.int64)
+    others = np.flatnonzero(~tables.convex) if tables is not None else np.zeros(0, np.int64)
+    if len(others) == 0 or len(triangles) == 0:
+        return part_of
+
+    def keys(faces):  # one 72-byte key per triangle, its three corners in byte order
+        corners = np.ascontiguousarray(faces, np.float64).view(np.dtype((np.void, 24))).reshape(len(faces), 3)
+        return np.ascontiguousarray(np.sort(corners, axis=1)).view(np.dtype((np.void, 72))).reshape(-1)
+
+    scene_keys = keys(triangles)
+    for h in others:  # non-convex emitters: a handful
+        faces = tables.face_vertices[tables.face_start[h]:tables.face_start[h + 1]]
+        _, inverse = np.unique(np.concatenate([keys(faces), scene_keys]), return_inverse=True)
+        inverse = inverse.reshape(-1)
+        part_of[np.isin(inverse[len(faces):], inverse[:len(faces)])] = h
+    return part_of
+
+
+def crowded_hulls(tables: HullTables | None, triangles: np.ndarray, part_of: np.ndarray,
+                  batch: int = 4096) -> np.ndarray:
+    """(H,) bool: the non-convex hulls that another scene triangle (T, 3, 3) may enter (not their own faces:
+    ``part_of``): along a ray through such a hull the other geometry may lie behind the emitter, which its
+    two lights (the module docstring) do not tell from in front, so those emitters stay one light per
+    triangle. A triangle is kept out when a plane separates it from the emitter's vertices (touching, within
+    CROWDED_MARGIN radii, allowed: a floor the emitter rests on): its own plane, or one normal to one of
+    WIDTH_VIEWS directions; otherwise it counts as inside (a conservative test)."""
+    out = np.zeros(len(tables) if tables is not None else 0, bool)
+    if tables is None:
+        return out
+    directions = _fibonacci_views(WIDTH_VIEWS)
+    for h in np.flatnonzero(~tables.convex):  # non-convex emitters: a handful
+        points = tables.vertex[tables.vertex_start[h]:tables.vertex_start[h + 1]]
+        eps = CROWDED_MARGIN * tables.radius[h]
+        low, high = points.min(axis=0) - eps, points.max(axis=0) + eps
+        near = np.flatnonzero((part_of != h) & (triangles.min(axis=1) < high).all(axis=1)
+                              & (triangles.max(axis=1) > low).all(axis=1))
+        extent_low, extent_high = (points @ directions.T).min(axis=0), (points @ directions.T).max(axis=0)
+        for start in range(0, len(near), batch):  # batches of the triangles near the emitter
+            part = triangles[near[start:start + batch]]
+            normal = np.cross(part[:, 1] - part[:, 0], part[:, 2] - part[:, 0])
+            normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+            height = points @ normal.T - np.einsum("bk,bk->b", normal, part[:, 0])     # (V, B)
+            apart = (height.min(axis=0) >= -eps) | (height.max(axis=0) <= eps)
+            along = np.einsum("bvk,dk->bvd", part, directions)                          # (B, 3, D)
+            apart |= ((along.min(axis=1) >= extent_high - eps) | (along.max(axis=1) <= extent_low + eps)).any(axis=1)
+            if not apart.all():
+                out[h] = True
+                break
+    return out
+
+
+def hulls_as_triangles(scene, rows: np.ndarray):
+    """``scene`` (a validated ``Scene``) with the emitter hulls ``rows`` (K,) int64 turned back into one
+    two-sided light per face (after the polygon lights): the exact path where a hull's two lights are not
+    (``crowded_hulls``, or an integrator other than the silhouettes)."""
+    hulls = scene.hulls
+    rows = np.asarray(rows, np.int64)
+    if len(rows) == 0:
+        return scene
+    faces = [hulls.faces_of(row) for row in rows]  # emitters: a handful
+    counts = [len(f) for f in faces]
+    triangles = np.concatenate(faces)
+    extra = Lights(triangles, np.full(len(triangles), 3, np.int64), np.repeat(hulls.radiance[rows], counts, axis=0),
+                   np.ones(len(triangles), bool), lobes=np.repeat(hulls.lobes[rows], counts))
+    keep = np.ones(len(hulls), bool)
+    keep[rows] = False
+    return dataclasses.replace(scene, lights=Lights.concat([scene.lights, extra]), hulls=hulls.subset(keep))
 
 
 def compile_emitters():

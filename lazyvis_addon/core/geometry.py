@@ -52,8 +52,11 @@ class LightFrames:
     cast_shadow : (L,) bool      False: nothing blocks the light (Cast Shadow off).
     spread : (L,) float64        Cycles' area light Spread, radians (pi: Lambertian; ``Lights.spread``).
     lobes : (L,) int64           the BSDF lobes the light reaches (``scene.LOBE_DIFFUSE | LOBE_GLOSSY``).
+    hull_far : (L,) bool         a non-convex emitter's far light (``emitters``: radiance -L, in the plane
+                                 beyond the emitter parallel to its near light's).
 
-    Closed convex mesh emitters (``Scene.hulls``) follow as six virtual lights each, kind FACING_HULL, whose
+    Mesh emitters grouped as hulls (``Scene.hulls``) follow as six virtual lights each (twelve for a
+    non-convex one: its near and far planes), kind FACING_HULL, whose
     polygon is built per receiver too (``emitters.hull_polygons``; ``hulls`` their tables, source the hull).
     """
 
@@ -79,7 +82,9 @@ class LightFrames:
     cast_shadow: np.ndarray | None = None
     spread: np.ndarray | None = None
     lobes: np.ndarray | None = None
+    hull_far: np.ndarray | None = None
     hulls: object = None
+    part_of: object = None       # (T,) int64 scene triangle -> non-convex hull it is a face of (render sets it)
 
     def __post_init__(self) -> None:
         count = len(self.vertex_count)
@@ -88,7 +93,8 @@ class LightFrames:
                         cap_radius=np.zeros(count), spot_frame=np.broadcast_to(np.eye(3), (count, 3, 3)).copy(),
                         spot_cos_half=np.full(count, -2.0), spot_smooth=np.zeros(count),
                         scene_light=np.arange(count, dtype=np.int64), cast_shadow=np.ones(count, bool),
-                        spread=np.full(count, np.pi), lobes=np.full(count, LOBES_ALL, np.int64))
+                        spread=np.full(count, np.pi), lobes=np.full(count, LOBES_ALL, np.int64),
+                        hull_far=np.zeros(count, bool))
         for name, value in defaults.items():
             if getattr(self, name) is None:
                 setattr(self, name, value)
@@ -137,6 +143,7 @@ def _joined(frames: LightFrames, extra: dict, first_scene_light: int) -> LightFr
     joined["vertices"] = np.concatenate([padded(frames.vertices, width), padded(extra["vertices"], width)])
     joined["vertex_count"] = np.concatenate([frames.vertex_count, extra["vertex_count"]])
     joined["source"] = np.concatenate([frames.source, extra["source"]])
+    joined["hull_far"] = np.concatenate([frames.hull_far, extra.get("hull_far", np.zeros(len(extra["source"]), bool))])
     joined["scene_light"] = np.concatenate([frames.scene_light, first_scene_light + extra["source"]])
     return LightFrames(**joined, hulls=frames.hulls)
 

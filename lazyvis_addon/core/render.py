@@ -19,7 +19,8 @@ from .antialias import (PILOT_SAMPLES, allocate_samples, centre_suffices, covers
 from .blockers import BlockerPolygons
 from .blocker_map import BlockerMap, build_blocker_map, flood_fill, reference_blocker_map
 from .camera import camera_rays, clip_distance, planar_depth, window_pixels
-from .emitters import FACING_HULL, near_receivers, nearby_geometry
+from .emitters import (FACING_HULL, crowded_hulls, hull_faces_in_scene, hull_tables, hulls_as_triangles,
+                       near_receivers, nearby_geometry)
 from .facing import too_close
 from .geometry import light_frames
 from .parallel import map_batches, thread_count
@@ -88,11 +89,13 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
     if scene.light_count == 0:
         progress.warn("the scene has no lights: surfaces render black")
 
+    scene = _emitters_as_triangles_where_needed(scene, settings, progress)
     progress.begin_stage("Building BVH")
     tracer = RayTracer(scene.triangles)
     extent = scene_extent(scene)
 
     frames = light_frames(scene.lights, scene.facing, scene_centre(scene), extent, scene.hulls)
+    frames.part_of = hull_faces_in_scene(frames.hulls, scene.triangles)
     if frames.hulls is not None:
         _warn_nearby_geometry(scene, frames, progress)
     pixel_global = _global_pixels(camera)
@@ -634,21 +637,39 @@ def _warn_clamped_caps(surface: SurfacePoints, frames, progress: Progress) -> No
                       f"than in Cycles (point/spot/sun light {', '.join(str(i) for i in close)})")
 
 
+def _emitters_as_triangles_where_needed(scene: Scene, settings: Settings, progress: Progress) -> Scene:
+    """Non-convex mesh emitters are two lights each for the silhouettes (``emitters``), exact while no other
+    geometry lies inside their hull; crowded ones, and all of them under the other integrators, go back to
+    one light per face (slower, exact), with one warning for the crowded."""
+    other = np.flatnonzero(~scene.hulls.convex)
+    if len(other) == 0:
+        return scene
+    if not settings.uses_silhouettes:
+        return hulls_as_triangles(scene, other)
+    tables = hull_tables(scene.hulls)
+    crowded = np.flatnonzero(crowded_hulls(tables, scene.triangles, hull_faces_in_scene(tables, scene.triangles)))
+    if len(crowded):
+        progress.warn("mesh emitters with other geometry inside their convex hull are rendered one light per face "
+                      f"(slower; emitter {', '.join(map(str, crowded))})")
+    return hulls_as_triangles(scene, crowded)
+
+
 def _warn_near_hulls(surface: SurfacePoints, frames, progress: Progress) -> None:
-    """One warning naming the convex mesh emitters that some visible point gets none of the light of
+    """One warning naming the mesh emitters (hulls) that some visible point gets none of the light of
     (``emitters.near_receivers``: within about 1.7 radii of the emitter's centre, or an overflowing
     silhouette)."""
-    missed = near_receivers(frames, surface.position[surface.hit])
+    hit = surface.hit
+    missed = near_receivers(frames, surface.position[hit], surface.index_triangle[hit], frames.part_of)
     if missed:
-        progress.warn("surfaces within about 1.7 radii of a convex mesh emitter's centre (or seeing more of its "
+        progress.warn("surfaces within about 1.7 radii of a mesh emitter's centre (or seeing more of its "
                       "outline than budgeted) get none of its light "
                       f"({', '.join(f'emitter {h}: {n} pixel(s)' for h, n in sorted(missed.items()))})")
 
 
 def _warn_nearby_geometry(scene: Scene, frames, progress: Progress) -> None:
-    """One warning naming the convex mesh emitters that other geometry comes close to: it may stand between
+    """One warning naming the mesh emitters (hulls) that other geometry comes close to: it may stand between
     the emitter and the plane its light is cut in, where it shadows nothing (``emitters.nearby_geometry``)."""
-    close = np.flatnonzero(nearby_geometry(frames.hulls, scene.triangles))
+    close = np.flatnonzero(nearby_geometry(frames.hulls, scene.triangles, frames.part_of))
     if len(close):
-        progress.warn("geometry within about 4 radii of a convex mesh emitter may not shadow the emitter's light "
+        progress.warn("geometry within about 4 radii of a mesh emitter may not shadow the emitter's light "
                       f"where it is closer to the emitter than its tangent planes (emitter {', '.join(map(str, close))})")

@@ -343,7 +343,8 @@ class FacingLights:
 
 @dataclass
 class EmitterHulls:
-    """Closed convex mesh emitters of uniform radiance, each one light (``emitters``).
+    """Mesh emitters of uniform radiance grouped as hulls (``emitters``): a closed convex one is one light,
+    any other two.
 
     From any point outside it, such an emitter is seen as its silhouette: the directions towards it are
     those of the polygon where the cone through the silhouette meets a plane, and every one carries its
@@ -356,18 +357,25 @@ class EmitterHulls:
     hull : (K,) int64               the emitter (row) of each face, ascending.
     radiance : (H, 3) float64       each emitter's radiance, W m^-2 sr^-1 per colour channel.
     lobes : (H,) int64              the BSDF lobes each reaches (``Lights.lobes``); None: both.
+    convex : (H,) bool              True (the default): closed and convex, seen as its silhouette. False:
+                                    any other emitter (a torus, a lamp shade), two-sided, seen as the
+                                    silhouette of its vertices' convex hull less the directions through
+                                    that hull that miss it (``emitters``).
     """
 
     triangles: np.ndarray
     hull: np.ndarray
     radiance: np.ndarray
     lobes: np.ndarray | None = None
+    convex: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.triangles = np.asarray(self.triangles, dtype=np.float64).reshape(-1, 3, 3)
         self.hull = np.asarray(self.hull, dtype=np.int64).reshape(-1)
         self.radiance = np.asarray(self.radiance, dtype=np.float64).reshape(-1, 3)
         self.lobes = _lobes(self.lobes, len(self.radiance))
+        self.convex = np.ones(len(self.radiance), bool) if self.convex is None else \
+            np.asarray(self.convex, bool).reshape(len(self.radiance))
 
     @classmethod
     def empty(cls) -> "EmitterHulls":
@@ -385,7 +393,8 @@ class EmitterHulls:
         keep = np.asarray(keep, bool)
         renumber = np.cumsum(keep) - 1
         faces = keep[self.hull]
-        return EmitterHulls(self.triangles[faces], renumber[self.hull[faces]], self.radiance[keep], self.lobes[keep])
+        return EmitterHulls(self.triangles[faces], renumber[self.hull[faces]], self.radiance[keep], self.lobes[keep],
+                            self.convex[keep])
 
 
 @dataclass
@@ -608,7 +617,7 @@ class Scene:
     facing : FacingLights
         Point, spot and sun lights (after ``lights`` in the light order of passes and statistics).
     hulls : EmitterHulls
-        Closed convex mesh emitters, one light each (after ``facing``); their faces are also triangles of
+        Mesh emitters grouped as hulls, one light each (after ``facing``); their faces are also triangles of
         the scene (they block other lights), not rows of ``lights``.
     seen : SeenLights
         The lights the camera sees (Ray Visibility > Camera), drawn over the image (``seen_lights``); they
@@ -766,7 +775,8 @@ class Scene:
                 arrays["seen_" + name] = getattr(self.seen, name)
         if len(self.hulls):
             arrays.update(hull_triangles=self.hulls.triangles, hull_index=self.hulls.hull,
-                          hull_radiance=self.hulls.radiance, hull_lobes=self.hulls.lobes)
+                          hull_radiance=self.hulls.radiance, hull_lobes=self.hulls.lobes,
+                          hull_convex=self.hulls.convex)
         for index, texture in enumerate(self.textures):
             arrays[f"texture_{index}_texels"] = texture.texels
             arrays[f"texture_{index}_options"] = np.array([str(int(texture.srgb)), texture.interpolation,
@@ -819,7 +829,8 @@ class Scene:
                        if "facing_kind" in data else FacingLights.empty(),
                        EmitterHulls(np.array(data["hull_triangles"]), np.array(data["hull_index"]),
                                     np.array(data["hull_radiance"]),
-                                    np.array(data["hull_lobes"]) if "hull_lobes" in data else None)
+                                    np.array(data["hull_lobes"]) if "hull_lobes" in data else None,
+                                    np.array(data["hull_convex"]) if "hull_convex" in data else None)
                        if "hull_radiance" in data else EmitterHulls.empty(),
                        SeenLights(*(np.array(data["seen_" + name]) for name in SEEN_ARRAYS))
                        if "seen_kind" in data else SeenLights.empty())
@@ -858,8 +869,8 @@ def _validated_hulls(hulls: EmitterHulls, progress: Progress) -> EmitterHulls:
         raise ValueError("emitter hull radiance must not be negative")
     if len(hulls.hull) != len(hulls.triangles) or (hulls.hull < 0).any() or (hulls.hull >= len(hulls)).any():
         raise ValueError("emitter hull faces must name an emitter in 0..H-1")
-    if (np.bincount(hulls.hull, minlength=len(hulls)) < 4).any():
-        raise ValueError("an emitter hull needs at least 4 faces (a closed convex mesh)")
+    if (np.bincount(hulls.hull, minlength=len(hulls))[hulls.convex] < 4).any():
+        raise ValueError("a convex emitter hull needs at least 4 faces (a closed convex mesh)")
     dark = hulls.radiance.max(axis=1) <= 0
     if dark.any():
         progress.warn(f"dropped {int(dark.sum())} mesh emitter(s) of zero radiance")

@@ -619,8 +619,10 @@ def pixel_batch_for(memory_budget_mb: float, threads: int, frames: LightFrames) 
     vertices = int(frames.vertex_count.max()) + 4 if len(frames) else 4
     # A receiver takes one plane of each lamp (three) and each convex emitter (six).
     virtual = frames.kind >= 0
-    lights_taken = int((~virtual).sum()) + len(np.unique(frames.kind[virtual] * (len(frames) + 1)
-                                                          + frames.source[virtual]))
+    # (A non-convex emitter's receiver takes two: its near and its far light.)
+    lights_taken = int((~virtual).sum()) + len(np.unique((frames.kind[virtual] * (len(frames) + 1)
+                                                          + frames.source[virtual]) * 2
+                                                         + frames.hull_far[virtual]))
     per_pixel = max(lights_taken, 1) * vertices * COUPLE_VERTEX_BYTES
     pixels = int(memory_budget_mb * 2 ** 20 / 4 / max(threads, 1) / per_pixel)
     if pixels < MIN_PIXEL_BATCH:

@@ -112,6 +112,23 @@ def mesh_emitters(scene) -> None:
                                              Strength=4.0))
 
 
+def nonconvex_emitters(scene) -> None:
+    """Issue 14: emitters that are not convex, each two lights: an emissive torus (576 triangles, tilted)
+    and an emissive lamp shade open at both ends, floating over a floor and a box, with a small area light."""
+    add_camera(scene, location=(0.0, -5.0, 3.0), rotation=(math.radians(62), 0.0, 0.0), lens=34.0)
+    bpy.ops.mesh.primitive_plane_add(size=8.0)
+    assign(bpy.context.object, node_material("Floor", Color=(0.65, 0.65, 0.65)))
+    bpy.ops.mesh.primitive_cube_add(size=0.5, location=(0.2, 0.3, 0.25), rotation=(0.0, 0.0, 0.5))
+    assign(bpy.context.object, node_material("Box", Color=(0.7, 0.45, 0.3)))
+    bpy.ops.mesh.primitive_torus_add(major_radius=0.35, minor_radius=0.1, major_segments=24, minor_segments=12,
+                                     location=(-0.7, 0.4, 1.8), rotation=(0.5, 0.2, 0.0))
+    assign(bpy.context.object, node_material("Ring", "ShaderNodeEmission", Color=(1.0, 0.8, 0.5), Strength=8.0))
+    bpy.ops.mesh.primitive_cone_add(vertices=20, radius1=0.3, radius2=0.18, depth=0.3, end_fill_type="NOTHING",
+                                    location=(0.9, 0.6, 1.6), rotation=(0.2, 0.0, 0.0))
+    assign(bpy.context.object, node_material("Shade", "ShaderNodeEmission", Color=(0.6, 0.8, 1.0), Strength=6.0))
+    add_area_light(location=(1.5, -1.0, 2.5), rotation=(0.4, 0.4, 0.0), shape="SQUARE", size=0.4, energy=20.0)
+
+
 def spread_lights(scene) -> None:
     """Issue 14: a floor and two boxes under a square area light of Spread 60 degrees and a rectangle of
     Spread 120 degrees, tilted, so that both the spread's edge and its weight fall across the image."""
@@ -348,6 +365,7 @@ CASES = (
     Case("emitter_added", (64, 48), build=emitter_added),
     Case("spread_lights", (64, 48), build=spread_lights),
     Case("mesh_emitters", (64, 48), build=mesh_emitters),
+    Case("nonconvex_emitters", (64, 48), build=nonconvex_emitters),
     Case("ray_visibility", (64, 48), build=ray_visibility),
     # The same at LazyVis' defaults with the floor matte: the glossy-only lights then light nothing.
     Case("ray_visibility_matte", (64, 48), build=ray_visibility, prepare=matte),

@@ -907,9 +907,9 @@ def test_emission_plane_becomes_one_two_sided_polygon_light(scene):
     assert polygon_area_normal(lights.vertices[0, :4])[0] == pytest.approx(1.0)
 
 
-def test_convex_emitters_become_hulls_and_others_stay_triangles(scene):
+def test_emitters_become_hulls_convex_or_not(scene):
     """Issue 14: a subdivided UV sphere (nearly convex), two instances of an emissive cube and a torus
-    (not convex) with one emitting material each."""
+    (not convex: one hull of two lights, ``core/emitters.py``) with one emitting material each."""
     add_camera(scene)
     bpy.ops.mesh.primitive_uv_sphere_add(segments=24, ring_count=12, radius=0.3, location=(0.0, 0.0, 2.0))
     sphere = bpy.context.object
@@ -925,12 +925,11 @@ def test_convex_emitters_become_hulls_and_others_stay_triangles(scene):
     assign(bpy.context.object, node_material("Ring", "ShaderNodeEmission", Strength=2.0))
     exported, _ = export(scene)
     hulls = exported.scene.hulls
-    assert len(hulls) == 3
-    assert sorted(np.bincount(hulls.hull).tolist()) == [12, 12, triangle_count(sphere)]
-    assert sorted(exported.light_names[-3:]) == ["Bulb", "Cube glow", "Cube glow"]
-    lights = exported.scene.lights
-    assert len(lights) == 12 * 6 * 2 and (lights.vertex_count == 3).all()  # the torus, per triangle
-    assert exported.scene.light_count == len(lights) + 3
+    assert len(hulls) == 4
+    assert sorted(np.bincount(hulls.hull).tolist()) == [12, 12, 12 * 6 * 2, triangle_count(sphere)]
+    assert sorted(exported.light_names[-4:]) == ["Bulb", "Cube glow", "Cube glow", "Ring"]
+    assert hulls.convex.tolist() == [True, True, True, False]  # the convex ones first
+    assert len(exported.scene.lights) == 0 and exported.scene.light_count == 4
 
 
 def test_world_background(scene):
