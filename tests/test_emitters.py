@@ -9,7 +9,8 @@ import pytest
 
 from lazyvis_addon.core import Camera, Lights, Materials, Scene, Settings, render
 from lazyvis_addon.core.demo_scenes import box_triangles, icosphere_triangles, look_at, quad_triangles
-from lazyvis_addon.core.emitters import (HULL_NEAR, HULL_TAKEN, closed_convex_faces, crowded_hulls, group_mesh_emitters,
+from lazyvis_addon.core.emitters import (HULL_INNER, HULL_NEAR, HULL_TAKEN, closed_convex_faces, crowded_hulls,
+                                         group_mesh_emitters,
                                          hull_faces_in_scene, hull_tables,
                                          hull_polygons, near_receivers, planar_convex_union)
 from lazyvis_addon.core.geometry import light_frames
@@ -180,18 +181,41 @@ def test_npz_round_trip_keeps_the_hulls(tmp_path):
     np.testing.assert_array_equal(render(loaded, CENTRES).combined, render(scene, CENTRES).combined)
 
 
-def test_surfaces_touching_a_hull_are_reported_not_silently_dark():
-    """A floor under a sphere resting on it: floor points within the planes' box get none of its light (the
-    limit), and the render says so; the rest of the floor is lit."""
-    sphere = icosphere_triangles((0.0, 0.0, 0.31), 0.3, 2)
-    scene = sphere_over_floor(sphere, hulls=True, blocker=False, resolution=64)
+def emitter_resting_on_floor(emitter, grouped: bool, resolution=24):
+    """A floor, a box beside and the emitter (black, emitting RADIANCE) resting on the floor, seen close."""
+    floor = quad_triangles([(-4, -4, 0), (4, -4, 0), (4, 4, 0), (-4, 4, 0)])
+    box = box_triangles((1.1, 0.4, 0.1), 0.2, 0.3)
+    triangles = np.concatenate([floor, box, emitter])
+    material = np.concatenate([np.zeros(len(floor) + len(box), np.int64), np.ones(len(emitter), np.int64)])
+    materials = Materials(np.array([[0.8, 0.8, 0.8], [0.0, 0.0, 0.0]]), np.array([[0.0] * 3, [RADIANCE] * 3]))
+    lights, hulls = emitter_lights(emitter), EmitterHulls.empty()
+    if grouped:
+        lights, hulls, _, _ = group_mesh_emitters(lights, np.zeros(len(emitter), np.int64))
+    camera = Camera.perspective(look_at((0.4, -2.0, 1.6), (0.0, 0.0, 0.1)), resolution, resolution, np.radians(50))
+    return Scene(triangles, material, materials, lights, camera, hulls=hulls)
+
+
+@pytest.mark.parametrize("shape", ["sphere", "torus", "tilted torus"])
+def test_an_emitter_resting_on_the_floor_lights_it_right_up_to_the_contact(shape):
+    """Floor points inside the box of the emitter's supporting planes take no plane; they take its six inner
+    lights instead (the box's faces, the emitter's own faces blocking nothing; for a non-convex one, six
+    more of radiance -L), each cut to the cone through the emitter (the whole face where the receiver lies
+    inside a non-convex emitter's hull: the floor in a torus' hole). The floor then equals one light per
+    triangle everywhere, the brightest pixels at the contact included (before: dark there, warned)."""
+    emitter = {"sphere": lambda: icosphere_triangles((0.0, 0.0, 0.3), 0.3, 2),
+               "torus": lambda: torus_triangles(centre=(0.1, 0.0, 0.15), tilt=0.0),
+               "tilted torus": lambda: torus_triangles(centre=(0.1, 0.0, 0.35), tilt=0.3)}[shape]()
+    scene = emitter_resting_on_floor(emitter, grouped=True)
     frames = light_frames(scene.lights, hulls=scene.hulls)
-    beside = np.array([[0.0, 0.0, 0.0], [0.05, 0.05, 0.0], [1.5, 0.0, 0.0]])  # two under the sphere, one far
-    assert near_receivers(frames, beside) == {0: 2}
+    near = np.array([[0.0, -0.05, 0.0]])  # under the emitter: inside the box, outside the emitter
+    statuses = hull_polygons(frames, np.full(1, np.flatnonzero(frames.slot == 6)[0]), near)[2]
+    assert (statuses == HULL_INNER).all() and near_receivers(frames, near) == {}
     out = render(scene, CENTRES)
-    assert any("get none of its light" in w for w in out.warnings)
-    assert any("may not shadow" in w for w in out.warnings)
-    assert (out.combined[..., 0] > 0).mean() > 0.5
+    assert not any("none of its light" in w for w in out.warnings)
+    exact = render(emitter_resting_on_floor(emitter, grouped=False), PER_TRIANGLE)
+    lit = exact.combined[..., :3] > 1e-6
+    assert lit.mean() > 0.5
+    assert np.abs(out.combined[..., :3][lit] / exact.combined[..., :3][lit] - 1).max() < 1e-5
 
 
 def test_bad_hulls_are_refused_with_a_clear_message():
@@ -270,7 +294,8 @@ def test_a_non_convex_emitter_is_two_lights_and_renders_as_its_triangles_do(shap
     scene = emitter_over_floor(emitter, grouped=True)
     assert len(scene.lights) == 0 and len(scene.hulls) == 1 and not scene.hulls.convex[0]
     frames = light_frames(scene.lights, hulls=scene.hulls)
-    assert frames.hull_far.sum() == 6 and (frames.radiance[frames.hull_far] < 0).all()
+    # Six outer, six far, six inner and six negative inner lights.
+    assert len(frames) == 24 and frames.hull_far.sum() == 12 and (frames.radiance[frames.hull_far] < 0).all()
     two = render(scene, CENTRES)
     exact = render(emitter_over_floor(emitter, grouped=False), PER_TRIANGLE)
     assert not any("none of its light" in w or "one light per face" in w for w in two.warnings)

@@ -28,10 +28,12 @@ ON_BOUNDARY = 1.0 - 1e-13
 # Columns of a couple table (``couple_table``), one row per (receiver, light) couple: the receiver, the
 # triangle it lies on, the light's plane (unit normal towards the receiver, its offset: height of y above
 # it = n . y - offset), the square root of the light's area (a length scale), the direction from the
-# receiver to the reference point R and the inward normals of the cone through the light's bounding quad.
+# receiver to the reference point R, the inward normals of the cone through the light's bounding quad, and
+# the emitter hull whose own faces block nothing of the light (``LightFrames.excluded``, -1 for none).
 COUPLE_POSITION, COUPLE_OWN, COUPLE_TOWARD, COUPLE_OFFSET, COUPLE_SIZE, COUPLE_REFERENCE, COUPLE_BOUND = \
     0, 3, 4, 7, 8, 9, 12
-COUPLE_WIDTH = 24
+COUPLE_EXCLUDED = 24
+COUPLE_WIDTH = 25
 
 
 def couple_table(position: np.ndarray, own_triangle: np.ndarray, light: np.ndarray, side: np.ndarray,
@@ -42,18 +44,21 @@ def couple_table(position: np.ndarray, own_triangle: np.ndarray, light: np.ndarr
     toward = side[:, None] * frames.normal[light]
     offset = np.einsum("nk,nk->n", toward, frames.origin[light])
     table = np.concatenate([position, own_triangle[:, None].astype(np.float64), toward, offset[:, None],
-                            np.sqrt(frames.area[light])[:, None], reference, bound.reshape(-1, 12)], axis=1)
+                            np.sqrt(frames.area[light])[:, None], reference, bound.reshape(-1, 12),
+                            frames.excluded[light][:, None].astype(np.float64)], axis=1)
     assert table.shape[1] == COUPLE_WIDTH
     return np.ascontiguousarray(table)
 
 
 @njit(cache=True, nogil=True, inline="always")
-def jump_at(couple, r, edge_start, third, triangle, cut_light, face_normal, face_offset, face_size):
+def jump_at(couple, r, edge_start, third, triangle, cut_light, face_normal, face_offset, face_size, part_of):
     """The change of depth complexity across edge record ``r``'s arc as the receiver of ``couple`` (a row of
-    a couple table) sees it, up to its sign: the sum over the edge's faces (not the receiver's own) of the
-    side of the plane through the receiver and the edge that the face's third vertex lies on,
-    sign(m . (a - x)) with the face's normal m = (b - a) x (c - a). 0 for an edge between two faces seen
+    a couple table) sees it, up to its sign: the sum over the edge's faces (not the receiver's own, nor
+    those of the emitter hull the couple's light excludes: ``part_of`` (T,) int64, the hull of each
+    triangle) of the side of the plane through the receiver and the edge that the face's third vertex lies
+    on, sign(m . (a - x)) with the face's normal m = (b - a) x (c - a). 0 for an edge between two faces seen
     from one side: no arc. Records as ``silhouettes.MeshEdges`` holds them."""
+    excluded = couple[COUPLE_EXCLUDED]
     x0, x1, x2 = couple[COUPLE_POSITION], couple[COUPLE_POSITION + 1], couple[COUPLE_POSITION + 2]
     reach = max(abs(edge_start[r, 0] - x0), abs(edge_start[r, 1] - x1), abs(edge_start[r, 2] - x2))
     total = 0.0
@@ -62,6 +67,8 @@ def jump_at(couple, r, edge_start, third, triangle, cut_light, face_normal, face
         if not abs(value) > SIGN_EPS * face_size[r, f] * reach:
             continue
         if triangle[r, f] == couple[COUPLE_OWN]:
+            continue
+        if excluded >= 0 and triangle[r, f] >= 0 and part_of[triangle[r, f]] == excluded:
             continue
         if cut_light[r] >= 0:  # a cut segment's vertex behind the light (from the receiver's side) counts 0
             away = third[r, f, 0] * couple[COUPLE_TOWARD] + third[r, f, 1] * couple[COUPLE_TOWARD + 1] + \

@@ -72,6 +72,7 @@ def detect_arcs(edges, leaf_size: int, hulls: np.ndarray, query_light: np.ndarra
               np.ascontiguousarray(edges.node_lights, np.uint64), np.ascontiguousarray(edges.lights_seen, np.uint64),
               f64(edges.low), f64(edges.high), i64(edges.light), f64(edges.start), f64(edges.end), f64(edges.third),
               i64(edges.triangle), f64(edges.face_normal), f64(edges.face_offset), f64(edges.face_size),
+              i64(edges.part_of if edges.part_of is not None and len(edges.part_of) else np.full(1, -1)),
               f64(hulls), i64(query_light), i64(query_unit), i64(query_units), f64(unit_hulls), i64(unit_first),
               i64(unit_size), i64(member),
               couple_table(position, own_triangle, couples.light, couples.side, frames, reference, bound), f64(cone),
@@ -163,7 +164,7 @@ def _may_be_silhouette(start, face_normal, cut, box_low, box_high):
 
 @njit(cache=True, nogil=True)
 def _detect(node_low, node_high, node_axis, node_spread, node_lights, lights_seen, record_low, record_high, record_light, edge_start, edge_end,
-            third, triangle, face_normal, face_offset, face_size, hulls, query_light, query_unit, query_units,
+            third, triangle, face_normal, face_offset, face_size, part_of, hulls, query_light, query_unit, query_units,
             unit_hulls, unit_first, unit_size, member, couple_rows, cone, cone_valid, n_leaves, leaf_size, q_start,
             capacity):
     out_couple = np.empty(capacity, np.int64)
@@ -228,7 +229,7 @@ def _detect(node_low, node_high, node_axis, node_spread, node_lights, lights_see
                         tests += 1
                         couple = couple_rows[c]
                         total = jump_at(couple, r, edge_start, third, triangle, record_light, face_normal,
-                                        face_offset, face_size)
+                                        face_offset, face_size, part_of)
                         if total != 0.0 and arc_test(couple, cone[c], cone_valid[c], r, total, cut, edge_start,
                                                      edge_end, scratch, out_start, out_end, out_normal, out_enter,
                                                      out_leave, out_jump, m):
@@ -244,5 +245,6 @@ def compile_detection() -> None:
     hull = np.zeros((1, HULL_WIDTH))
     bits = np.zeros(1, np.uint64)
     _detect(f, f, f, one, bits, bits, f, f, i, f, f, faces, np.zeros((1, 2), np.int64), faces, np.zeros((1, 2)),
-            np.zeros((1, 2)), hull, i, i, i, hull, i, i, i, np.zeros((1, COUPLE_WIDTH)), np.zeros((1, 3, 3)),
+            np.zeros((1, 2)), np.full(1, -1, np.int64), hull, i, i, i, hull, i, i, i,
+            np.full((1, COUPLE_WIDTH), -1.0), np.zeros((1, 3, 3)),
             np.zeros((1, 3), np.bool_), 1, 32, 0, 16)

@@ -34,11 +34,22 @@ directions that meet E and nothing before it: exact when no other geometry lies 
 the cone (``crowded_hulls`` keeps emitters with other geometry inside their hull one light per triangle;
 beside it, ``nearby_geometry`` warns), at the cost of two lights.
 
-Limits, stated where they apply: geometry between a hull and the plane a receiver takes (within about a
-radius of the emitter's surface) blocks none of its light, and where it pierces that plane inside the light
-pass 2's silhouettes shade it wrong (issue 13's xfail test; ``nearby_geometry`` warns of both); a receiver
-inside the box the six planes bound (within about 1.7 radii of the centre) that takes no plane gets none of
-the hull's light (``near_receivers`` counts them for a warning); so does a non-convex emitter's own surface.
+A receiver **inside the box** the six supporting planes bound (a floor under an emitter resting on it, near
+the contact) stands above no supporting plane, and the cone through the emitter may span nearly a
+hemisphere, which no one plane holds. It takes the hull's six **inner lights** instead: the faces of that
+box (moved out by INNER_MARGIN radii), facing in, whose rays run from the receiver through the emitter to
+the face, the emitter's own faces blocking nothing (``LightFrames.excluded``: detection's jumps and the
+depth rays skip them). Every direction from inside the box leaves it through one face, so each face's light
+is the face's rectangle cut by the planes of the cone through the emitter (``_inner_section``) and the six
+add up to the cone. A non-convex emitter takes six more of radiance -L that its faces block, as above; a
+receiver inside its hull (the floor in a torus' hole) takes whole faces (all directions: the -L lights take
+out those that miss it).
+
+Limits, stated where they apply: geometry between a hull and the plane (or the box's face) a receiver
+takes blocks the light it should not, or none (``nearby_geometry`` warns when geometry comes within 4
+radii); where it pierces a near plane inside the light pass 2's silhouettes shade it wrong (issue 13's
+xfail test); a receiver on or inside a convex emitter gets none of its light, and so does a non-convex
+emitter's own surface (its other faces would light it; ``near_receivers`` counts them for a warning).
 """
 
 from __future__ import annotations
@@ -46,6 +57,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import numpy as np
 from numba import njit
@@ -58,6 +70,9 @@ FACING_HULL = 3
 # A receiver's polygon must lie within this many bounding radii of the hull's centre's foot on the plane:
 # the frame's own square of that half-width holds every receiver's (the conservative tests read it).
 HOLDER_REACH = 3.0
+# The box of a hull's supporting planes, moved out by this fraction of its radius, holds its inner lights
+# (the emitter strictly inside it).
+INNER_MARGIN = 1e-3
 # The same for a non-convex emitter's far plane, whose sections are larger (receivers nearer than about a
 # radius to the near plane take another plane, or none).
 FAR_HOLDER_REACH = 3.0 * HOLDER_REACH
@@ -358,47 +373,78 @@ def _silhouette_budget(face_normal: np.ndarray, edge_face: np.ndarray) -> int:
 
 
 def hull_frames(tables: HullTables, radiance: np.ndarray, lobes: np.ndarray | None = None) -> dict:
-    """The hulls' virtual lights (six per hull, in hull order) as ``facing.facing_frames`` gives a lamp's:
-    origin, tangent, bitangent, normal (K, 3); uv (K, W, 2) and vertices (K, W, 3) the square holding every
-    receiver's polygon (W = the widest hull's budget); vertex_count (K,) each hull's budget; radiance (K, 3);
-    two_sided (K,) False; area (K,); kind FACING_HULL, slot 0..5, source the hull (K,) int64; cap_centre
-    (K, 3), cap_radius (K,); spot_frame, spot_cos_half, spot_smooth; cast_shadow; spread; lobes (K,) from the
-    hulls' ``lobes`` (H,) (None: all); hull_far (K,) bool.
+    """The hulls' virtual lights as ``facing.facing_frames`` gives a lamp's: origin, tangent, bitangent,
+    normal (K, 3); uv (K, W, 2) and vertices (K, W, 3) the polygon holding every receiver's (W = the widest
+    budget); vertex_count (K,) each row's budget; radiance (K, 3); two_sided (K,) False; area (K,); kind
+    FACING_HULL, slot, source the hull (K,) int64; cap_centre (K, 3), cap_radius (K,); spot_frame,
+    spot_cos_half, spot_smooth; cast_shadow; spread; lobes (K,) from the hulls' ``lobes`` (H,) (None: all);
+    hull_far (K,) bool; excluded (K,) int64.
 
-    A non-convex hull's six near lights are followed, after every hull's, by its six far lights: radiance
-    -L, each in the supporting plane beyond the hull parallel to its near light's (the module docstring)."""
+    In groups of six of one hull: every hull's six outer planes (slots 0..5, the supporting planes: a
+    receiver above one takes one), then each non-convex hull's six far planes (slots 0..5, radiance -L),
+    then every hull's six inner lights (slots 6..11: the faces of the box of its supporting planes, facing
+    inwards, its own faces excluded; a receiver inside the box takes all six), then each non-convex hull's
+    six inner lights of radiance -L that its faces block (the module docstring)."""
     count = len(tables)
-    other = np.flatnonzero(~tables.convex)
-    source = np.concatenate([np.repeat(np.arange(count), 6), np.repeat(other, 6)])
-    slot = np.tile(np.arange(6), count + len(other))
-    far = np.arange(len(source)) >= 6 * count
+    hulls, other = np.arange(count), np.flatnonzero(~tables.convex)
+    source = np.concatenate([np.repeat(hulls, 6), np.repeat(other, 6), np.repeat(hulls, 6), np.repeat(other, 6)])
+    slot = np.concatenate([np.tile(np.arange(6), count + len(other)), np.tile(np.arange(6, 12), count + len(other))])
+    part = np.repeat([0, 1, 2, 3], 6 * np.array([count, len(other), count, len(other)]))  # outer, far, inner, -inner
+    far = (part == 1) | (part == 3)
+    inner = part >= 2
     sign = np.where(far, -1.0, 1.0)
-    width = int(tables.width.max()) if count else 4
-    normal = tables.plane_normal[source, slot]
-    # The far plane: normal n_j too (x stands above it), through the hull's lowest point along n_j.
-    origin = np.where(far[:, None], tables.centre[source] - tables.plane_support[source, slot ^ 1][:, None] * normal,
-                      tables.plane_origin[source, slot])
-    tangent = tables.plane_tangent[source, slot]
-    bitangent = tables.plane_bitangent[source, slot]
+    j = slot % 6
+    width = int(tables.width.max()) + 4 if count else 8
+    outward = tables.plane_normal[source, j]
+    normal = np.where(inner[:, None], -outward, outward)  # facing the receivers
+    margin = INNER_MARGIN * tables.radius[source]
+    # Outer: the supporting plane. Far: parallel to it through the hull's lowest point along n_j. Inner: the
+    # supporting plane moved out by a margin (the emitter strictly inside), facing in.
+    origin = np.where(far[:, None] & ~inner[:, None],
+                      tables.centre[source] - tables.plane_support[source, j ^ 1][:, None] * outward,
+                      tables.plane_origin[source, j] + np.where(inner, margin, 0.0)[:, None] * outward)
+    tangent = tables.plane_tangent[source, j]
+    bitangent = np.where(inner[:, None], -1.0, 1.0) * tables.plane_bitangent[source, j]  # right-handed
     reach = np.where(far, FAR_HOLDER_REACH, HOLDER_REACH) * tables.radius[source]
     uv = np.zeros((len(source), width, 2))
-    vertex_count = tables.width[source]
+    vertex_count = np.where(inner, tables.width[source] + 4, tables.width[source])
+    # An inner light's polygon: the box's face, a rectangle [low, high] in (tangent, bitangent).
+    low, high = _box_face(tables, source, tangent, bitangent, margin)
+    centre_uv, half_uv = np.where(inner[:, None], 0.5 * (low + high), 0.0), \
+        np.where(inner[:, None], 0.5 * (high - low), reach[:, None])
     for budget in np.unique(vertex_count):  # hull budgets: a handful
         rows = np.flatnonzero(vertex_count == budget)
-        square = _square_perimeter(int(budget))
-        uv[rows, :budget] = reach[rows, None, None] * square[None]
-        uv[rows, budget:] = uv[rows, budget - 1:budget]
+        square = _square_perimeter(int(4 * (budget // 4)))
+        filled = len(square)
+        uv[rows, :filled] = centre_uv[rows, None] + half_uv[rows, None] * square[None]
+        uv[rows, filled:] = uv[rows, filled - 1:filled]
     vertices = origin[:, None] + uv[..., :1] * tangent[:, None] + uv[..., 1:] * bitangent[:, None]
+    area = np.where(inner, np.prod(high - low, axis=1), (2.0 * reach) ** 2)
     return dict(origin=origin, tangent=tangent, bitangent=bitangent, normal=normal, uv=uv, vertices=vertices,
                 vertex_count=vertex_count, radiance=sign[:, None] * np.asarray(radiance, np.float64)[source],
-                two_sided=np.zeros(len(source), bool), area=(2.0 * reach) ** 2,
+                two_sided=np.zeros(len(source), bool), area=area,
                 kind=np.full(len(source), FACING_HULL, np.int64), slot=slot, source=source,
                 cap_centre=tables.centre[source], cap_radius=tables.radius[source],
                 spot_frame=np.broadcast_to(np.eye(3), (len(source), 3, 3)).copy(),
                 spot_cos_half=np.full(len(source), -2.0), spot_smooth=np.zeros(len(source)),
                 cast_shadow=np.ones(len(source), bool), spread=np.full(len(source), np.pi),
                 lobes=np.full(len(source), LOBES_ALL, np.int64) if lobes is None
-                else np.asarray(lobes, np.int64)[source], hull_far=far)
+                else np.asarray(lobes, np.int64)[source], hull_far=far,
+                excluded=np.where(inner & ~far, source, -1))
+
+
+def _box_face(tables: HullTables, source: np.ndarray, tangent: np.ndarray, bitangent: np.ndarray,
+              margin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The (tangent, bitangent) ranges (K, 2) low and high, about the face's foot of the centre, of the face of
+    each row's box (its hull's supporting planes moved out by ``margin``): tangent and bitangent are +-axes
+    of the planes, whose supports give the ranges."""
+    def support(direction):  # (K, 3) a +-axis -> the hull's support along it, plus the margin
+        j = np.argmax(np.einsum("kjd,kd->kj", tables.plane_normal[source], direction), axis=1)
+        return tables.plane_support[source, j] + margin
+
+    low = np.stack([-support(-tangent), -support(-bitangent)], axis=1)
+    high = np.stack([support(tangent), support(bitangent)], axis=1)
+    return low, high
 
 
 def _square_perimeter(points: int) -> np.ndarray:
@@ -413,7 +459,7 @@ def _square_perimeter(points: int) -> np.ndarray:
 # Each receiver's polygon
 # ------------------------------------------------------------------------------------------------------
 
-HULL_TAKEN, HULL_NEAR, HULL_OVERFLOW = 0, 1, 2
+HULL_TAKEN, HULL_NEAR, HULL_OVERFLOW, HULL_INNER = 0, 1, 2, 3
 
 
 def hull_polygons(frames, light: np.ndarray, position: np.ndarray
@@ -428,13 +474,15 @@ def hull_polygons(frames, light: np.ndarray, position: np.ndarray
     -------
     uv : (N, W, 2) float64   counter-clockwise about the plane's normal (padded with its last vertex);
     count : (N,) int64       its vertices, 0 where the receiver takes another of the hull's planes or none;
-    status : (N,) int64      HULL_TAKEN, or HULL_NEAR (no plane takes the receiver: inside the planes' box)
-                             or HULL_OVERFLOW (its silhouette has more vertices than budgeted);
+    status : (N,) int64      HULL_TAKEN (a plane takes the receiver); for a receiver inside the planes' box,
+                             HULL_INNER where the row is an inner light (slots 6..11) and the receiver sees
+                             the hull within a half-space, else HULL_NEAR; HULL_OVERFLOW (its silhouette has
+                             more vertices than budgeted);
     taken : (N,) int64       the plane (slot 0..5) the receiver takes, -1 for none.
     """
     tables = frames.hulls
     light = np.ascontiguousarray(light, np.int64)
-    width = int(tables.width.max()) if len(tables) else 4
+    width = int(tables.width.max()) + 4 if len(tables) else 8  # (an inner light's: the outline and a rectangle)
     uv = np.empty((len(light), width, 2))
     count = np.empty(len(light), np.int64)
     status = np.empty(len(light), np.int64)
@@ -443,7 +491,12 @@ def hull_polygons(frames, light: np.ndarray, position: np.ndarray
     vertices = int(np.diff(tables.vertex_start).max()) if len(tables) else 1
     front = np.zeros(faces + vertices, np.bool_)  # face flags, then vertex flags (``_silhouette_vertices``)
     rim = np.zeros(vertices, np.int64)
+    # The inner lights' rectangles (the other rows' are unused there).
+    holder = np.asarray(frames.uv, np.float64)
+    box_low, box_high = holder.min(axis=1), holder.max(axis=1)
     _hull_polygons(light, np.ascontiguousarray(position, np.float64), frames.source, frames.slot,
+                   np.ascontiguousarray(frames.origin, np.float64), np.ascontiguousarray(frames.tangent, np.float64),
+                   np.ascontiguousarray(frames.bitangent, np.float64), box_low, box_high,
                    tables.vertex, tables.vertex_start, tables.face_normal, tables.face_offset, tables.face_start,
                    tables.edge_vertex, tables.edge_face, tables.edge_start, tables.centre, tables.radius,
                    tables.plane_origin, tables.plane_normal, tables.plane_tangent, tables.plane_bitangent,
@@ -565,7 +618,112 @@ def _convex_hull_indices(points, m, chain, tolerance=0.0):
 
 
 @njit(cache=True, nogil=True)
-def _hull_polygons(light, position, source, slot, vertex, vertex_start, face_normal, face_offset, face_start,
+def _inner_section(r, h, l, rim, m, vertex, centre, row_origin, row_tangent, row_bitangent, box_low, box_high, out):
+    """The part of inner light l (a face of hull h's box, facing in) through which r, inside the box, sees
+    the hull: the face's rectangle (box_low .. box_high in its (tangent, bitangent)) clipped by the planes
+    through r and the outline of the rim vertices ``rim[:m]`` (the cone from r through the hull), into
+    ``out`` (budget, 2) counter-clockwise; returns its vertex count (0: the cone misses this face), -1 where
+    the hull is not within a half-space seen from r (r on or inside it) or the outline overflows."""
+    axis = np.empty(3)
+    size = 0.0
+    for k in range(3):
+        axis[k] = centre[h, k] - r[k]
+        size += axis[k] * axis[k]
+    size = np.sqrt(size)
+    if not size > 0:
+        return -1
+    for k in range(3):
+        axis[k] /= size
+    helper = np.zeros(3)
+    helper[np.argmin(np.abs(axis))] = 1.0
+    e1 = np.empty(3)
+    e2 = np.empty(3)
+    e1[0] = axis[1] * helper[2] - axis[2] * helper[1]
+    e1[1] = axis[2] * helper[0] - axis[0] * helper[2]
+    e1[2] = axis[0] * helper[1] - axis[1] * helper[0]
+    norm = np.sqrt(e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2])
+    for k in range(3):
+        e1[k] /= norm
+    e2[0] = axis[1] * e1[2] - axis[2] * e1[1]  # e1 x e2 = axis
+    e2[1] = axis[2] * e1[0] - axis[0] * e1[2]
+    e2[2] = axis[0] * e1[1] - axis[1] * e1[0]
+    points = np.empty((m, 2))
+    for i in range(m):  # gnomonic projection about the axis: the hull must lie in front of r
+        v = rim[i]
+        along, p1, p2, length = 0.0, 0.0, 0.0, 0.0
+        for k in range(3):
+            w = vertex[v, k] - r[k]
+            along += w * axis[k]
+            p1 += w * e1[k]
+            p2 += w * e2[k]
+            length += w * w
+        if not along > 1e-6 * np.sqrt(length):
+            return -1
+        points[i, 0], points[i, 1] = p1 / along, p2 / along
+    chain = np.empty(2 * m, np.int64)
+    n_outline = _convex_hull_indices(points, m, chain)
+    if n_outline < 3:
+        return -1
+    # The face rectangle, counter-clockwise in (tangent, bitangent).
+    poly = np.empty((out.shape[0] + n_outline + 4, 2))
+    other = np.empty((out.shape[0] + n_outline + 4, 2))
+    poly[0, 0], poly[0, 1] = box_low[l, 0], box_low[l, 1]
+    poly[1, 0], poly[1, 1] = box_high[l, 0], box_low[l, 1]
+    poly[2, 0], poly[2, 1] = box_high[l, 0], box_high[l, 1]
+    poly[3, 0], poly[3, 1] = box_low[l, 0], box_high[l, 1]
+    count = 4
+    # q(u, v) = origin + u T + v B; keep (q - r) . N >= 0 for each cone plane N = d_i x d_{i+1}.
+    base = np.empty(3)
+    for k in range(3):
+        base[k] = row_origin[l, k] - r[k]
+    d_a = np.empty(3)
+    d_b = np.empty(3)
+    plane = np.empty(3)
+    for i in range(n_outline):
+        a, b = chain[i], chain[(i + 1) % n_outline]
+        for k in range(3):
+            d_a[k] = axis[k] + points[a, 0] * e1[k] + points[a, 1] * e2[k]
+            d_b[k] = axis[k] + points[b, 0] * e1[k] + points[b, 1] * e2[k]
+        plane[0] = d_a[1] * d_b[2] - d_a[2] * d_b[1]
+        plane[1] = d_a[2] * d_b[0] - d_a[0] * d_b[2]
+        plane[2] = d_a[0] * d_b[1] - d_a[1] * d_b[0]
+        size_a = d_a[0] * d_a[0] + d_a[1] * d_a[1] + d_a[2] * d_a[2]
+        size_b = d_b[0] * d_b[0] + d_b[1] * d_b[1] + d_b[2] * d_b[2]
+        if not plane[0] * plane[0] + plane[1] * plane[1] + plane[2] * plane[2] > 1e-24 * size_a * size_b:
+            continue  # two outline points a rounding apart (a seam's twin vertices): no plane
+        alpha, beta, gamma = 0.0, 0.0, 0.0
+        for k in range(3):
+            alpha += base[k] * plane[k]
+            beta += row_tangent[l, k] * plane[k]
+            gamma += row_bitangent[l, k] * plane[k]
+        kept = 0  # Sutherland-Hodgman against alpha + beta u + gamma v >= 0
+        for p in range(count):
+            q = (p + 1) % count
+            vp = alpha + beta * poly[p, 0] + gamma * poly[p, 1]
+            vq = alpha + beta * poly[q, 0] + gamma * poly[q, 1]
+            if vp >= 0:
+                other[kept, 0], other[kept, 1] = poly[p, 0], poly[p, 1]
+                kept += 1
+            if (vp >= 0) != (vq >= 0):
+                s = vp / (vp - vq)
+                other[kept, 0] = poly[p, 0] + s * (poly[q, 0] - poly[p, 0])
+                other[kept, 1] = poly[p, 1] + s * (poly[q, 1] - poly[p, 1])
+                kept += 1
+        count = kept
+        for p in range(count):
+            poly[p, 0], poly[p, 1] = other[p, 0], other[p, 1]
+        if count < 3:
+            return 0
+    if count > out.shape[0]:
+        return -1
+    for p in range(count):
+        out[p, 0], out[p, 1] = poly[p, 0], poly[p, 1]
+    return count
+
+
+@njit(cache=True, nogil=True)
+def _hull_polygons(light, position, source, slot, row_origin, row_tangent, row_bitangent, box_low, box_high,
+                   vertex, vertex_start, face_normal, face_offset, face_start,
                    edge_vertex, edge_face, edge_start, centre, radius, plane_origin, plane_normal, plane_tangent,
                    plane_bitangent, plane_support, width, convex, far_row, reach, far_reach, out_uv, out_count,
                    out_status, out_taken, front, rim):
@@ -586,8 +744,9 @@ def _hull_polygons(light, position, source, slot, vertex, vertex_start, face_nor
                 value += (r[k] - plane_origin[h, j, k]) * plane_normal[h, j, k]
             heights[j] = value
         order = np.argsort(-heights)
-        if not heights[order[0]] > 1e-9 * radius[h]:
-            continue  # inside the planes' box: no plane takes r
+        inside = not heights[order[0]] > 1e-9 * radius[h]  # inside the planes' box: no plane takes r
+        if inside and slot[l] < 6:
+            continue
         if convex[h]:
             m = _silhouette_vertices(r, h, vertex_start, face_normal, face_offset, face_start, edge_vertex,
                                      edge_face, edge_start, front, rim)
@@ -598,7 +757,7 @@ def _hull_polygons(light, position, source, slot, vertex, vertex_start, face_nor
         if m < 3:
             continue
         taken = -1
-        for i in range(6):  # the planes r stands above, highest first: the first its polygon fits
+        for i in range(6 if not inside else 0):  # the planes r stands above, highest first: the first that fits
             j = order[i]
             if not heights[j] > 1e-9 * radius[h]:
                 break
@@ -621,6 +780,27 @@ def _hull_polygons(light, position, source, slot, vertex, vertex_start, face_nor
                 taken = j
                 break
         if taken < 0:
+            if slot[l] >= 6 and out_status[n] == HULL_NEAR:  # inside the box: the inner lights, all six
+                count = _inner_section(r, h, l, rim, m, vertex, centre, row_origin, row_tangent, row_bitangent,
+                                       box_low, box_high, out_uv[n])
+                if count == -1 and not convex[h]:
+                    # r inside the hull of a non-convex emitter (the floor in a torus' hole): the whole face,
+                    # every direction (the -L lights take out those that meet nothing)
+                    out_uv[n, 0, 0], out_uv[n, 0, 1] = box_low[l, 0], box_low[l, 1]
+                    out_uv[n, 1, 0], out_uv[n, 1, 1] = box_high[l, 0], box_low[l, 1]
+                    out_uv[n, 2, 0], out_uv[n, 2, 1] = box_high[l, 0], box_high[l, 1]
+                    out_uv[n, 3, 0], out_uv[n, 3, 1] = box_low[l, 0], box_high[l, 1]
+                    count = 4
+                if count >= 0:
+                    out_status[n] = HULL_INNER
+                if count >= 3:
+                    out_count[n] = count
+                    for v in range(count, out_uv.shape[1]):
+                        out_uv[n, v, 0], out_uv[n, v, 1] = out_uv[n, count - 1, 0], out_uv[n, count - 1, 1]
+            continue
+        if slot[l] >= 6:  # outside the box: no inner light
+            out_status[n] = HULL_TAKEN
+            out_taken[n] = taken
             continue
         out_status[n] = HULL_TAKEN
         out_taken[n] = taken
@@ -632,13 +812,17 @@ def _hull_polygons(light, position, source, slot, vertex, vertex_start, face_nor
 
 
 def taken_hull_planes(frames, position: np.ndarray) -> np.ndarray:
-    """(N, K) bool over the frames' hull rows (K = 6 per hull, in frame order): the plane each receiver
-    (N, 3) takes of each hull (``hull_polygons``), computed once per receiver and hull."""
+    """(N, K) bool over the frames' hull rows (in groups of six, in frame order): the outer plane each
+    receiver (N, 3) takes of each hull, or its six inner lights when it lies inside the hull's box
+    (``hull_polygons``), computed once per receiver and group."""
     rows = np.flatnonzero(frames.kind == FACING_HULL)
     out = np.zeros((len(position), len(rows)), bool)
-    for column in range(0, len(rows), 6):  # hulls: a handful
-        taken = hull_polygons(frames, np.full(len(position), rows[column], np.int64), position)[3]
-        out[:, column:column + 6] = taken[:, None] == frames.slot[rows[column:column + 6]][None]
+    for column in range(0, len(rows), 6):  # hulls' groups of six: a handful
+        _, _, status, taken = hull_polygons(frames, np.full(len(position), rows[column], np.int64), position)
+        if frames.slot[rows[column]] >= 6:  # inner lights: all six, for a receiver inside the box
+            out[:, column:column + 6] = (status == HULL_INNER)[:, None]
+        else:
+            out[:, column:column + 6] = taken[:, None] == frames.slot[rows[column:column + 6]][None]
     return out
 
 
@@ -652,7 +836,7 @@ def near_receivers(frames, points: np.ndarray, triangle: np.ndarray | None = Non
     if frames.hulls is None or len(frames.hulls) == 0 or len(points) == 0:
         return out
     tables = frames.hulls
-    first_rows = np.flatnonzero((frames.kind == FACING_HULL) & (frames.slot == 0) & (frames.radiance.max(axis=1) > 0))
+    first_rows = np.flatnonzero((frames.kind == FACING_HULL) & (frames.slot == 6) & (frames.radiance.max(axis=1) > 0))
     for light in first_rows:  # hulls: a handful
         h = int(frames.source[light])
         faces = slice(tables.face_start[h], tables.face_start[h + 1])
@@ -668,7 +852,7 @@ def near_receivers(frames, points: np.ndarray, triangle: np.ndarray | None = Non
             on_or_inside[start:start + 4096] = (height <= tolerance).all(axis=1)
         outside = np.flatnonzero(~on_or_inside)
         status = hull_polygons(frames, np.full(len(outside), light, np.int64), points[outside])[2]
-        missed = int((status != HULL_TAKEN).sum())
+        missed = int(((status != HULL_TAKEN) & (status != HULL_INNER)).sum())
         if missed:
             out[int(frames.source[light])] = missed
     return out
@@ -708,11 +892,11 @@ def nearby_geometry(tables: HullTables, triangles: np.ndarray, part_of: np.ndarr
 
 
 def hull_faces_in_scene(tables: HullTables | None, triangles: np.ndarray) -> np.ndarray:
-    """(T,) int64: for each scene triangle (T, 3, 3), the non-convex hull it is a face of, -1 for none.
-    Matched by their exact coordinates (a hull's faces are copies of the scene's triangles), whatever the
-    order of the corners."""
+    """(T,) int64: for each scene triangle (T, 3, 3), the hull it is a face of, -1 for none (its inner lights
+    exclude them). Matched by their exact coordinates (a hull's faces are copies of the scene's triangles),
+    whatever the order of the corners."""
     part_of = np.full(len(triangles), -1, np.int64)
-    others = np.flatnonzero(~tables.convex) if tables is not None else np.zeros(0, np.int64)
+    others = np.arange(len(tables)) if tables is not None else np.zeros(0, np.int64)
     if len(others) == 0 or len(triangles) == 0:
         return part_of
 
@@ -721,7 +905,7 @@ def hull_faces_in_scene(tables: HullTables | None, triangles: np.ndarray) -> np.
         return np.ascontiguousarray(np.sort(corners, axis=1)).view(np.dtype((np.void, 72))).reshape(-1)
 
     scene_keys = keys(triangles)
-    for h in others:  # non-convex emitters: a handful
+    for h in others:  # emitters: a handful
         faces = tables.face_vertices[tables.face_start[h]:tables.face_start[h + 1]]
         _, inverse = np.unique(np.concatenate([keys(faces), scene_keys]), return_inverse=True)
         inverse = inverse.reshape(-1)
@@ -787,10 +971,8 @@ def compile_emitters():
                       [[0, 0, 0], [0, 0, 1], [0, 1, 0]], [[1, 0, 0], [0, 1, 0], [0, 0, 1]]], np.float64)
     tables = hull_tables(EmitterHulls(faces, np.zeros(4, np.int64), np.ones((1, 3))))
 
-    class _Frames:
-        hulls = tables
-        source = np.zeros(6, np.int64)
-        slot = np.arange(6)
-
-    hull_polygons(_Frames, np.zeros(1, np.int64), np.array([[2.0, 2.0, 2.0]]))
-    return _hull_polygons, _silhouette_vertices, _project_silhouette, _convex_hull, _convex_hull_indices
+    frames = SimpleNamespace(hulls=tables, **hull_frames(tables, np.ones((1, 3))))
+    hull_polygons(frames, np.zeros(1, np.int64), np.array([[2.0, 2.0, 2.0]]))
+    hull_polygons(frames, np.full(1, 6, np.int64), np.array([[0.3, 0.3, -0.01]]))  # an inner light
+    return _hull_polygons, _silhouette_vertices, _project_silhouette, _convex_hull, _convex_hull_indices, \
+        _inner_section

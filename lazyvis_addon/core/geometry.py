@@ -54,6 +54,8 @@ class LightFrames:
     lobes : (L,) int64           the BSDF lobes the light reaches (``scene.LOBE_DIFFUSE | LOBE_GLOSSY``).
     hull_far : (L,) bool         a non-convex emitter's far light (``emitters``: radiance -L, in the plane
                                  beyond the emitter parallel to its near light's).
+    excluded : (L,) int64        the emitter hull whose own faces block none of the light (a hull's inner
+                                 lights, ``emitters``); -1 for none.
 
     Mesh emitters grouped as hulls (``Scene.hulls``) follow as six virtual lights each (twelve for a
     non-convex one: its near and far planes), kind FACING_HULL, whose
@@ -83,6 +85,7 @@ class LightFrames:
     spread: np.ndarray | None = None
     lobes: np.ndarray | None = None
     hull_far: np.ndarray | None = None
+    excluded: np.ndarray | None = None
     hulls: object = None
     part_of: object = None       # (T,) int64 scene triangle -> non-convex hull it is a face of (render sets it)
 
@@ -94,7 +97,7 @@ class LightFrames:
                         spot_cos_half=np.full(count, -2.0), spot_smooth=np.zeros(count),
                         scene_light=np.arange(count, dtype=np.int64), cast_shadow=np.ones(count, bool),
                         spread=np.full(count, np.pi), lobes=np.full(count, LOBES_ALL, np.int64),
-                        hull_far=np.zeros(count, bool))
+                        hull_far=np.zeros(count, bool), excluded=np.full(count, -1, np.int64))
         for name, value in defaults.items():
             if getattr(self, name) is None:
                 setattr(self, name, value)
@@ -144,6 +147,8 @@ def _joined(frames: LightFrames, extra: dict, first_scene_light: int) -> LightFr
     joined["vertex_count"] = np.concatenate([frames.vertex_count, extra["vertex_count"]])
     joined["source"] = np.concatenate([frames.source, extra["source"]])
     joined["hull_far"] = np.concatenate([frames.hull_far, extra.get("hull_far", np.zeros(len(extra["source"]), bool))])
+    joined["excluded"] = np.concatenate([frames.excluded, extra.get("excluded", np.full(len(extra["source"]), -1,
+                                                                                          np.int64))])
     joined["scene_light"] = np.concatenate([frames.scene_light, first_scene_light + extra["source"]])
     return LightFrames(**joined, hulls=frames.hulls)
 

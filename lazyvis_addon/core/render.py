@@ -668,8 +668,10 @@ def _warn_near_hulls(surface: SurfacePoints, frames, progress: Progress) -> None
 
 def _warn_nearby_geometry(scene: Scene, frames, progress: Progress) -> None:
     """One warning naming the mesh emitters (hulls) that other geometry comes close to: it may stand between
-    the emitter and the plane its light is cut in, where it shadows nothing (``emitters.nearby_geometry``)."""
+    the emitter and the plane (or box face) its light is cut in, where it shadows wrongly
+    (``emitters.nearby_geometry``)."""
     close = np.flatnonzero(nearby_geometry(frames.hulls, scene.triangles, frames.part_of))
     if len(close):
         progress.warn("geometry within about 4 radii of a mesh emitter may not shadow the emitter's light "
-                      f"where it is closer to the emitter than its tangent planes (emitter {', '.join(map(str, close))})")
+                      "exactly where it is closer to the emitter than its tangent planes "
+                      f"(emitter {', '.join(map(str, close))})")

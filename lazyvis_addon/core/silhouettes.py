@@ -43,7 +43,7 @@ from numba import njit
 from . import arcs as arcs_module, arrangement as arrangement_module, detection as detection_module
 from .arcs import Arcs, _cone_planes, cone_of_light
 from .arrangement import compile_arrangement, jumps_between, visible_fans
-from .emitters import compile_emitters
+from .emitters import compile_emitters, hull_faces_in_scene
 from .facing import compile_facing
 from .detection import (HULL_BASE, HULL_BOX_HIGH, HULL_BOX_LOW, HULL_EPS, HULL_HEIGHT, HULL_HIGH, HULL_LOW,
                         HULL_SIDE_NORMAL, HULL_SIDE_OFFSET, HULL_SIDE_VALID, HULL_TOWARD, HULL_WIDTH, compile_detection,
@@ -108,7 +108,9 @@ class MeshEdges:
     node_low: np.ndarray
     node_high: np.ndarray
     n_triangles: int = 0
-    in_light_planes: np.ndarray | None = None   # sorted light * T + triangle of faces in a light's plane
+    in_light_planes: np.ndarray | None = None   # sorted light * T + triangle of faces that block nothing of a
+                                                 # light (in its plane, or its emitter's own: ``excluded``)
+    part_of: np.ndarray | None = None            # (T,) int64: the hull a triangle is a face of, -1
     node_axis: np.ndarray | None = None          # (2P - 1, 3) unit axis of each node's cone of face normals
     node_spread: np.ndarray | None = None        # (2P - 1,) its radius (inf: the node cannot be culled)
     lights_seen: np.ndarray | None = None        # (E,) uint64: bit l set where the record may be a silhouette
@@ -182,7 +184,10 @@ class MeshEdges:
         winding = cross3(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
         edges = cls._in_tree_order(start, end, thirds, triangles_of, lights, winding)
         edges.n_triangles = n
-        edges.in_light_planes = _in_light_planes(triangles, frames) if frames is not None else np.zeros(0, np.int64)
+        edges.part_of = frames.part_of if frames is not None and frames.part_of is not None else \
+            hull_faces_in_scene(frames.hulls if frames is not None else None, triangles)
+        edges.in_light_planes = _in_light_planes(triangles, frames, edges.part_of) if frames is not None \
+            else np.zeros(0, np.int64)
         edges.lights_seen = np.full(len(edges), ALL_LIGHTS, np.uint64)
         if frames is not None and len(edges):
             _silhouette_lights(edges.start, edges.face_normal, edges.face_offset, edges.face_size, edges.triangle,
@@ -344,15 +349,19 @@ PLANE_FACE_EPS = 1e-6
 CUT_EPS = 1e-9
 
 
-def _in_light_planes(triangles: np.ndarray, frames: LightFrames) -> np.ndarray:
-    """Sorted keys light * T + triangle (int64) of the faces lying in each light's plane."""
+def _in_light_planes(triangles: np.ndarray, frames: LightFrames, part_of: np.ndarray) -> np.ndarray:
+    """Sorted keys light * T + triangle (int64) of the faces that block nothing of a light: those lying in
+    its plane, and an emitter hull's own faces for the lights that exclude them (``frames.excluded``;
+    ``part_of`` (T,) from ``emitters.hull_faces_in_scene``)."""
     scale = max(float(np.abs(triangles).max()) if len(triangles) else 1.0, 1e-300)
     keys = []
     for light in range(len(frames)):  # lights: a handful
         height = np.einsum("tvk,k->tv", triangles - frames.origin[light], frames.normal[light])
         flat = np.flatnonzero((np.abs(height) <= PLANE_FACE_EPS * scale).all(axis=1))
         keys.append(light * len(triangles) + flat)
-    return np.sort(np.concatenate(keys)) if keys else np.zeros(0, np.int64)
+        if frames.excluded[light] >= 0:
+            keys.append(light * len(triangles) + np.flatnonzero(part_of == frames.excluded[light]))
+    return np.unique(np.concatenate(keys)) if keys else np.zeros(0, np.int64)
 
 
 def _cut_segments(triangles: np.ndarray, frames: LightFrames, light: int, k: int = 2):
