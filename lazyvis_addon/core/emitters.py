@@ -817,12 +817,17 @@ def taken_hull_planes(frames, position: np.ndarray) -> np.ndarray:
     (``hull_polygons``), computed once per receiver and group."""
     rows = np.flatnonzero(frames.kind == FACING_HULL)
     out = np.zeros((len(position), len(rows)), bool)
+    near = {}  # per hull: the receivers no outer plane takes (the only ones an inner light can take)
     for column in range(0, len(rows), 6):  # hulls' groups of six: a handful
-        _, _, status, taken = hull_polygons(frames, np.full(len(position), rows[column], np.int64), position)
-        if frames.slot[rows[column]] >= 6:  # inner lights: all six, for a receiver inside the box
-            out[:, column:column + 6] = (status == HULL_INNER)[:, None]
+        row, source = rows[column], int(frames.source[rows[column]])
+        if frames.slot[row] >= 6:  # inner lights: all six, for a receiver inside the box
+            inside = near.get(source, np.zeros(0, np.int64))
+            status = hull_polygons(frames, np.full(len(inside), row, np.int64), position[inside])[2]
+            out[inside[status == HULL_INNER], column:column + 6] = True
         else:
+            _, _, status, taken = hull_polygons(frames, np.full(len(position), row, np.int64), position)
             out[:, column:column + 6] = taken[:, None] == frames.slot[rows[column:column + 6]][None]
+            near.setdefault(source, np.flatnonzero(status == HULL_NEAR))
     return out
 
 
