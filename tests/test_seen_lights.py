@@ -186,3 +186,16 @@ def test_a_scene_of_lights_only_renders_what_the_camera_sees_of_them():
                   np.array([0.1, 0.1, 0.1]), seen=rectangle())
     image = render(scene, POINT).combined
     assert np.isclose(image[..., 0].min(), 0.1) and np.isclose(image[..., 0].max(), 0.1 + RADIANCE[0])
+
+
+def test_a_border_render_draws_the_lights_of_the_full_frame():
+    """A window (Blender's border, a farm's tile) draws exactly the full frame's pixels, outlines included:
+    the outline samples are seeded by the full-frame pixel."""
+    camera = Camera.perspective(look_at((0.3, -2.0, 1.0), (0, 0, 1.0), up=(0, 0, 1)), 40, 30, math.radians(50.0))
+    seen = SeenLights.concat([SeenLights.area((0.0, 0.0, 1.0), (0.4, 0, 0), (0, 0, 0.3), RADIANCE, ellipse=True),
+                              SeenLights.lamp((0.5, 0.5, 1.2), 0.1, np.ones(3))])
+    full = render(seen_scene(seen, camera), Settings()).combined
+    window = (7, 5, 29, 21)
+    tile = Camera(camera.world_from_camera, 40, 30, camera.projection, camera.screen_window, window)
+    part = render(seen_scene(seen, tile), Settings()).combined
+    assert full[..., 0].max() > 1.0 and np.array_equal(part, full[5:21, 7:29])

@@ -197,33 +197,42 @@ def draw_seen_lights(seen: SeenLights, camera, tracer, settings: Settings, pixel
     drawn = np.zeros((len(xs), 3))
     if len(seen) == 0:
         return drawn, np.zeros(0, np.int64)
-    height, width = camera.window_shape
     extent = half_extent(filter_width, filter_type)
+    k = int(np.ceil(extent + 0.5))  # the filter's reach in pixels
+    # The coarse samples run over the window grown by that reach (within the frame), so that a pixel at
+    # the window's edge is refined exactly when it is in the full frame: a border renders the frame's pixels.
+    x0, y0, x1, y1 = camera.window
+    grown = (max(x0 - k, 0), max(y0 - k, 0), min(x1 + k, camera.width), min(y1 + k, camera.height))
+    gxs, gys = window_pixels(camera, grown)
+    g_height, g_width = grown[3] - grown[1], grown[2] - grown[0]
     boxes = screen_boxes(seen, camera)
     reach = 0.5 + extent + 1e-6  # the samples' reach about the pixel centre
-    centre_x, centre_y = xs + 0.5, ys + 0.5
-    near = np.zeros(len(xs), bool)
-    for x0, y0, x1, y1 in boxes:  # a handful
-        near |= (centre_x + reach >= x0) & (centre_x - reach <= x1) & (centre_y + reach >= y0) & \
-            (centre_y - reach <= y1)
+    centre_x, centre_y = gxs + 0.5, gys + 0.5
+    near = np.zeros(len(gxs), bool)
+    for bx0, by0, bx1, by1 in boxes:  # a handful
+        near |= (centre_x + reach >= bx0) & (centre_x - reach <= bx1) & (centre_y + reach >= by0) & \
+            (centre_y - reach <= by1)
     pixels = np.flatnonzero(near)
     if progress is not None:
         progress.begin_stage("Drawing lights", len(pixels))
     offsets = filter_offsets(_grid(SEEN_SAMPLES), filter_width, filter_type)
-    means, some, every = _pixel_means(seen, camera, tracer, xs[pixels], ys[pixels], offsets, batch, progress)
-    drawn[pixels] = means
-    some_grid = np.zeros((height, width), np.int64)
-    every_grid = np.zeros((height, width), np.int64)
+    means, some, every = _pixel_means(seen, camera, tracer, gxs[pixels], gys[pixels], offsets, batch, progress)
+    some_grid = np.zeros((g_height, g_width), np.int64)
+    every_grid = np.zeros((g_height, g_width), np.int64)
     some_grid.reshape(-1)[pixels], every_grid.reshape(-1)[pixels] = some, every
     refine = some_grid != every_grid
-    k = int(np.ceil(extent + 0.5))
     padded_some = np.pad(some_grid, k, mode="edge")
     padded_every = np.pad(every_grid, k, mode="edge")
-    for dy in range(-k, k + 1):  # the filter's reach in pixels: a handful of offsets
+    for dy in range(-k, k + 1):  # a handful of offsets
         for dx in range(-k, k + 1):
-            rows, cols = slice(k + dy, k + dy + height), slice(k + dx, k + dx + width)
+            rows, cols = slice(k + dy, k + dy + g_height), slice(k + dx, k + dx + g_width)
             refine |= (padded_some[rows, cols] != some_grid) | (padded_every[rows, cols] != every_grid)
-    edge = np.flatnonzero(refine.reshape(-1) & near)
+    # Back to the window: its rows and columns of the grown grid.
+    inner = ((np.arange(y0, y1) - grown[1])[:, None] * g_width + (np.arange(x0, x1) - grown[0])[None, :]).reshape(-1)
+    coarse = np.zeros((len(gxs), 3))
+    coarse[pixels] = means
+    drawn[:] = coarse[inner]
+    edge = np.flatnonzero(refine.reshape(-1)[inner] & near[inner])
     index = np.tile(np.arange(OUTLINE_SAMPLES), len(edge))
     u = rng.sobol_2d(settings.seed, settings.frame, rng.STREAM_SEEN_LIGHTS, np.repeat(pixel_global[edge],
                                                                                      OUTLINE_SAMPLES), index)
