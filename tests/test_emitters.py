@@ -183,15 +183,21 @@ def test_npz_round_trip_keeps_the_hulls(tmp_path):
 
 def emitter_resting_on_floor(emitter, grouped: bool, resolution=24):
     """A floor, a box beside and the emitter (black, emitting RADIANCE) resting on the floor, seen close."""
-    floor = quad_triangles([(-4, -4, 0), (4, -4, 0), (4, 4, 0), (-4, 4, 0)])
-    box = box_triangles((1.1, 0.4, 0.1), 0.2, 0.3)
-    triangles = np.concatenate([floor, box, emitter])
-    material = np.concatenate([np.zeros(len(floor) + len(box), np.int64), np.ones(len(emitter), np.int64)])
+    return emitter_scene(emitter, grouped, [box_triangles((1.1, 0.4, 0.1), 0.2, 0.3)],
+                         look_at((0.4, -2.0, 1.6), (0.0, 0.0, 0.1)), resolution)
+
+
+def emitter_scene(emitter, grouped: bool, geometry: list, camera_matrix, resolution: int) -> Scene:
+    """A floor, other ``geometry`` and the emitter (black, emitting RADIANCE; one light per triangle, or
+    grouped as ``group_mesh_emitters`` does when ``grouped``) through a 50-degree camera."""
+    geometry = [quad_triangles([(-4, -4, 0), (4, -4, 0), (4, 4, 0), (-4, 4, 0)])] + geometry
+    triangles = np.concatenate(geometry + [emitter])
+    material = np.concatenate([np.zeros(sum(len(g) for g in geometry), np.int64), np.ones(len(emitter), np.int64)])
     materials = Materials(np.array([[0.8, 0.8, 0.8], [0.0, 0.0, 0.0]]), np.array([[0.0] * 3, [RADIANCE] * 3]))
     lights, hulls = emitter_lights(emitter), EmitterHulls.empty()
     if grouped:
         lights, hulls, _, _ = group_mesh_emitters(lights, np.zeros(len(emitter), np.int64))
-    camera = Camera.perspective(look_at((0.4, -2.0, 1.6), (0.0, 0.0, 0.1)), resolution, resolution, np.radians(50))
+    camera = Camera.perspective(camera_matrix, resolution, resolution, np.radians(50))
     return Scene(triangles, material, materials, lights, camera, hulls=hulls)
 
 
@@ -268,17 +274,9 @@ def _quads(grid):
 
 def emitter_over_floor(emitter, grouped: bool, resolution=28, extra=None):
     """A floor, a slab under the emitter and the emitter (black, emitting RADIANCE) seen from above and aside."""
-    floor = quad_triangles([(-4, -4, 0), (4, -4, 0), (4, 4, 0), (-4, 4, 0)])
     slab = quad_triangles([(-0.5, -0.15, 0.3), (0.5, -0.15, 0.3), (0.5, 0.15, 0.3), (-0.5, 0.15, 0.3)])
-    geometry = [floor, slab] + ([extra] if extra is not None else [])
-    triangles = np.concatenate(geometry + [emitter])
-    material = np.concatenate([np.zeros(sum(len(g) for g in geometry), np.int64), np.ones(len(emitter), np.int64)])
-    materials = Materials(np.array([[0.8, 0.8, 0.8], [0.0, 0.0, 0.0]]), np.array([[0.0] * 3, [RADIANCE] * 3]))
-    lights, hulls = emitter_lights(emitter), EmitterHulls.empty()
-    if grouped:
-        lights, hulls, _, _ = group_mesh_emitters(lights, np.zeros(len(emitter), np.int64))
-    camera = Camera.perspective(look_at((0.4, -4.0, 3.2), (0.0, 0.0, 0.6)), resolution, resolution, np.radians(50))
-    return Scene(triangles, material, materials, lights, camera, hulls=hulls)
+    return emitter_scene(emitter, grouped, [slab] + ([extra] if extra is not None else []),
+                         look_at((0.4, -4.0, 3.2), (0.0, 0.0, 0.6)), resolution)
 
 
 PER_TRIANGLE = dataclasses.replace(CENTRES, memory_budget_mb=4096)

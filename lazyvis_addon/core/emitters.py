@@ -47,9 +47,10 @@ out those that miss it).
 
 Limits, stated where they apply: geometry between a hull and the plane (or the box's face) a receiver
 takes blocks the light it should not, or none (``nearby_geometry`` warns when geometry comes within 4
-radii); where it pierces a near plane inside the light pass 2's silhouettes shade it wrong (issue 13's
-xfail test); a receiver on or inside a convex emitter gets none of its light, and so does a non-convex
-emitter's own surface (its other faces would light it; ``near_receivers`` counts them for a warning).
+radii); where it pierces a near plane inside the light, pass 2's silhouettes may shade it wrong; a
+receiver on or inside a convex emitter gets none of its light (as it should); a non-convex emitter's own
+surface takes the inner lights (the whole faces: it lies inside its hull), so its other faces light it,
+wrongly where other geometry lies behind it in the box (a floor under a torus).
 """
 
 from __future__ import annotations

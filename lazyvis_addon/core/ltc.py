@@ -96,6 +96,20 @@ def ltc_inverse_matrix(roughness, cos_view) -> np.ndarray:
     return inverse
 
 
+def ltc_density(directions, normal, view, roughness) -> np.ndarray:
+    """The fitted lobe D_ltc (S,) per unit solid angle at unit directions (S, 3): the clamped cosine
+    D_o(ω_o) = max(ω_o.z, 0) / π at ω_o = M⁻¹ F ω / |M⁻¹ F ω|, times the Jacobian |det M⁻¹| / |M⁻¹ F ω|³
+    (F the receiver's ``ltc_frame``); normal, view (S, 3), roughness (S,). Its integral over a polygon is
+    ``ltc_shape_integral``'s share."""
+    cos_view = _dot(normal, view)
+    inverse = ltc_inverse_matrix(roughness, cos_view)
+    local = np.einsum("sij,sjk,sk->si", inverse, ltc_frame(normal, view), directions)
+    length = np.linalg.norm(local, axis=1)
+    determinant = np.abs(np.linalg.det(inverse))
+    length = np.maximum(length, 1e-300)
+    return np.maximum(local[:, 2] / length, 0.0) / np.pi * determinant / length ** 3
+
+
 def ltc_shape_integral(directions, normal, view, roughness, count=None, centroid: bool = False):
     """∫_P D_ltc dω: the fraction of the fitted lobe that falls in each polygon, (M,) in [0, 1].
 

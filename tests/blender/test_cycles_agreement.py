@@ -341,7 +341,7 @@ FILTERED_CASES = [case for case in agreement_scenes.CASES if not case.point_samp
 # pass shows the issue done). The room's Principled sofa (roughness 0.9) and side table (0.6) are 1-4 %
 # below Cycles by LTC's shape error (glossy Monte Carlo over the same pieces agrees): issue 16. Its
 # lights are proven by room_matte.
-EXPECTED_FAILURES = {"room": "issue 16: LTC's glossy shape error (1-4 % on roughness 0.6-0.9)"}
+EXPECTED_FAILURES = {}
 CASES = [pytest.param(case, "analytic", id=f"{case.name}-analytic",
                       marks=[pytest.mark.xfail(reason=EXPECTED_FAILURES[case.name], strict=True)]
                       if case.name in EXPECTED_FAILURES else [])
@@ -484,6 +484,26 @@ def test_glossy_monte_carlo_matches_cycles_within_the_noise(addon, case, tmp_pat
     print(describe(f"{case.name} (glossy MC, {GLOSSY_MC_SAMPLES} samples)", stats),
           f"LazyVis' own noise {100 * own_noise / stats['mean']:.3f}%, combined ratio {ratio:.2f}")
     assert ratio <= RATIO_LIMIT and abs(stats["bias"]) < BIAS_LIMIT, describe(case.name, stats)
+
+
+# The default glossy integral (LTC and its shape error by a Gauss rule) against Cycles on the glossy floor:
+# (relative RMSE, |bias|) limits, measured 2026-12-03 at 1.03 / 0.097 / 0.11 / 0.095 % RMSE and biases
+# under 0.08 %. At roughness 0.1 the lobe is too sharp for the rule: plain LTC (1 %) is used there.
+CV_LIMITS = {0.1: (0.012, 0.002), 0.3: (0.0015, 0.0005), 0.5: (0.0015, 0.0005), 0.8: (0.0015, 0.0005)}
+
+
+@pytest.mark.parametrize("case", GLOSSY_CASES, ids=[case.name for case in GLOSSY_CASES])
+def test_glossy_default_integral_is_within_a_fraction_of_a_percent_of_cycles(addon, case, tmp_path):
+    """Issue 16: at LazyVis' defaults, a fraction of a percent from Cycles where plain LTC is 5-6 % off
+    (``test_glossy_ltc_error_against_cycles_is_as_documented``). Its remaining error is above the references'
+    0.01-0.04 % noise, so the limits are the measured error with a margin, not the noise ratio."""
+    first, second = references(case)
+    ours = render_lazyvis(case, "analytic", tmp_path)
+    edges, at_emitters, _ = excluded_pixels(case, tmp_path)
+    stats = agreement(ours, first, second, ~(edges | at_emitters))
+    rmse_limit, bias_limit = CV_LIMITS[dict(case.options)["roughness"]]
+    print(describe(f"{case.name} (default glossy)", stats))
+    assert stats["relative_rmse"] <= rmse_limit and abs(stats["bias"]) <= bias_limit, describe(case.name, stats)
 
 
 @pytest.mark.parametrize("case", GLOSSY_CASES, ids=[case.name for case in GLOSSY_CASES])
