@@ -697,8 +697,8 @@ def ltc_residual(directions: np.ndarray, count: np.ndarray, pixel: np.ndarray, m
     directions : (P, K, 3) piece vertices relative to the receiver (in the light's plane), count (P,);
     pixel : (P,) rows of ``bsdf``; magnitude : (P, 3) the LTC share's factor (``glossy_magnitude``)."""
     out = np.zeros((len(count), 3))
-    # The fitted lobe's transform and Jacobian per piece, once (``ltc.ltc_density`` per point would look the
-    # tables up at every point).
+    # The fitted lobe (``ltc.ltc_density``'s formula, tested there) with its transform and Jacobian taken once
+    # per piece: ``ltc_density`` per point would look the tables up at every point.
     normal, view, roughness = bsdf.normal[pixel], bsdf.view[pixel], bsdf.roughness[pixel]
     inverse = ltc_inverse_matrix(roughness, np.einsum("pk,pk->p", normal, view))
     transform = np.einsum("pij,pjk->pik", inverse, ltc_frame(normal, view))
