@@ -735,21 +735,21 @@ def ltc_residual(directions: np.ndarray, count: np.ndarray, pixel: np.ndarray, m
         cross = np.cross(e1, e2)
         p = v0[:, None] + CV_POINTS[None, :, :1] * e1[:, None] + CV_POINTS[None, :, 1:] * e2[:, None]  # (F, G, 3)
         distance = np.linalg.norm(p, axis=2)
-        w = (p / distance[..., None]).reshape(-1, 3)
-        d_omega = (np.abs(np.einsum("fk,fgk->fg", cross, p)) / distance ** 3 * CV_WEIGHTS[None]).reshape(-1)
-        rows = np.repeat(pixel[piece], len(CV_WEIGHTS))
-        cos_i = np.maximum(np.einsum("fk,fgk->fg", normal[piece], w.reshape(len(piece), -1, 3)), 0.0).reshape(-1)
-        local = np.einsum("fij,fgj->fgi", transform[piece], w.reshape(len(piece), -1, 3))  # M⁻¹ F ω
+        w = p / distance[..., None]
+        d_omega = np.abs((p @ cross[:, :, None])[..., 0]) / distance ** 3 * CV_WEIGHTS[None]        # (F, G)
+        cos_i = np.maximum((w @ normal[piece][:, :, None])[..., 0], 0.0)
+        local = w @ np.transpose(transform[piece], (0, 2, 1))                                    # M⁻¹ F ω
         length = np.maximum(np.linalg.norm(local, axis=2), 1e-300)
-        lobe = (np.maximum(local[..., 2] / length, 0.0) / np.pi * determinant[piece, None] / length ** 3).reshape(-1)
+        lobe = np.maximum(local[..., 2] / length, 0.0) / np.pi * determinant[piece, None] / length ** 3
         # The lobe's shape (white, single-scattering, over its albedo) against the fitted one; the Fresnel
-        # and multiscatter factors stay in ``magnitude``, as LTC's share takes them.
-        white = ggx_single_scatter(w, bsdf.view[rows], bsdf.normal[rows], bsdf.roughness[rows])[0] * cos_i \
-            / np.repeat(norm[piece], len(CV_WEIGHTS))
-        residual = np.repeat(magnitude[piece], len(CV_WEIGHTS), axis=0) * ((white - lobe) * d_omega)[:, None]
+        # and multiscatter factors stay in ``magnitude``, as LTC's share takes them: one number per triangle.
+        rows = np.repeat(pixel[piece], len(CV_WEIGHTS))
+        white = ggx_single_scatter(w.reshape(-1, 3), bsdf.view[rows], bsdf.normal[rows],
+                                   bsdf.roughness[rows])[0].reshape(len(piece), -1) * cos_i
+        per_triangle = (white * d_omega).sum(axis=1) / norm[piece] - (lobe * d_omega).sum(axis=1)
+        contribution = magnitude[piece] * per_triangle[:, None]
         for channel in range(3):  # colour channels
-            out[:, channel] += np.bincount(np.repeat(piece, len(CV_WEIGHTS)), weights=residual[:, channel],
-                                           minlength=len(count))
+            out[:, channel] += np.bincount(piece, weights=contribution[:, channel], minlength=len(count))
     return out
 
 
