@@ -9,7 +9,8 @@ Truth: Cycles, direct light only, point-sampled (filter 0.01), ``--reference-sam
 Their mean is the truth; their difference measures its remaining noise, which is taken out of every error
 below (error² - truth noise², so a converged truth is not needed). Cached in ``bench/cache/``.
 
-Each LazyVis glossy integrator (LTC, Phong, MC with ``--mc-samples``) renders point-sampled like the truth
+Each LazyVis glossy integrator (``--integrators``: LTC with its correction, the default; LTC; Phong; MC with
+``--mc-samples``) renders point-sampled like the truth
 (anti-aliasing off), and Cycles then renders with its time limit set to that wall time: the error of
 each against the truth is printed, with the bias (mean difference) separately.
 """
@@ -108,6 +109,8 @@ def main() -> int:
     parser.add_argument("--resolution", type=int, default=512)
     parser.add_argument("--reference-samples", type=int, default=2048)
     parser.add_argument("--mc-samples", type=int, default=16)
+    parser.add_argument("--integrators", nargs="+", default=["ltc_cv", "ltc", "phong", "mc"],
+                        help="glossy integrators to run (default: all; ltc_cv is the default)")
     args = parser.parse_args()
 
     import bpy  # noqa: F401  (Blender as a module)
@@ -122,7 +125,7 @@ def main() -> int:
         reference, reference_noise = truth(args.resolution, args.reference_samples, scratch)
         print(f"  its remaining noise: {100 * reference_noise:.3f}% relative RMS")
         print(f"\n{'renderer':34s} {'seconds':>8s} {'rel. RMSE':>10s} {'bias':>8s}")
-        for integrator in ("ltc", "phong", "mc"):  # the three glossy integrators
+        for integrator in args.integrators:  # the glossy integrators: a handful
             scene = open_scene(args.resolution)
             scene.render.engine = "LAZYVIS"
             scene.lazyvis.glossy_integrator = integrator
