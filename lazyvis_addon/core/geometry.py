@@ -57,8 +57,9 @@ class LightFrames:
     excluded : (L,) int64        the emitter hull whose own faces block none of the light (a hull's inner
                                  lights, ``emitters``); -1 for none.
 
-    Mesh emitters grouped as hulls (``Scene.hulls``) follow as six virtual lights each (twelve for a
-    non-convex one: its near and far planes), kind FACING_HULL, whose
+    Mesh emitters grouped as hulls (``Scene.hulls``) follow as virtual lights, kind FACING_HULL, in groups of
+    six: twelve for a convex emitter (its supporting planes, and the inner faces of their box), twenty-four
+    for a non-convex one (also its far planes and the inner faces' -L twins; ``emitters.hull_frames``), whose
     polygon is built per receiver too (``emitters.hull_polygons``; ``hulls`` their tables, source the hull).
     """
 
@@ -87,7 +88,7 @@ class LightFrames:
     hull_far: np.ndarray | None = None
     excluded: np.ndarray | None = None
     hulls: object = None
-    part_of: object = None       # (T,) int64 scene triangle -> non-convex hull it is a face of (render sets it)
+    part_of: object = None       # (T,) int64 scene triangle -> the hull it is a face of, -1 (render sets it)
 
     def __post_init__(self) -> None:
         count = len(self.vertex_count)

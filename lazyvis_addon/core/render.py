@@ -656,13 +656,13 @@ def _emitters_as_triangles_where_needed(scene: Scene, settings: Settings, progre
 
 def _warn_near_hulls(surface: SurfacePoints, frames, progress: Progress) -> None:
     """One warning naming the mesh emitters (hulls) that some visible point gets none of the light of
-    (``emitters.near_receivers``: within about 1.7 radii of the emitter's centre, or an overflowing
-    silhouette)."""
+    (``emitters.near_receivers``: an outline with more vertices than budgeted, or a point inside the box of
+    a hull's planes whose inner lights fail)."""
     hit = surface.hit
     missed = near_receivers(frames, surface.position[hit], surface.index_triangle[hit], frames.part_of)
     if missed:
-        progress.warn("surfaces within about 1.7 radii of a mesh emitter's centre (or seeing more of its "
-                      "outline than budgeted) get none of its light "
+        progress.warn("surfaces next to a mesh emitter (seeing more of its outline than budgeted) get none of its "
+                      "light "
                       f"({', '.join(f'emitter {h}: {n} pixel(s)' for h, n in sorted(missed.items()))})")
 
 
