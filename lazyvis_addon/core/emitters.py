@@ -900,11 +900,23 @@ def nearby_geometry(tables: HullTables, triangles: np.ndarray, part_of: np.ndarr
 def hull_faces_in_scene(tables: HullTables | None, triangles: np.ndarray) -> np.ndarray:
     """(T,) int64: for each scene triangle (T, 3, 3), the hull it is a face of, -1 for none (its inner lights
     exclude them). Matched by their exact coordinates (a hull's faces are copies of the scene's triangles),
-    whatever the order of the corners."""
+    whatever the order of the corners: one sort of every hull face's key and every triangle's together."""
     part_of = np.full(len(triangles), -1, np.int64)
-    others = np.arange(len(tables)) if tables is not None else np.zeros(0, np.int64)
-    if len(others) == 0 or len(triangles) == 0:
+    if tables is None or len(tables) == 0 or len(triangles) == 0:
         return part_of
+
+    def keys(faces):  # one 72-byte key per triangle, its three corners in byte order
+        corners = np.ascontiguousarray(faces, np.float64).view(np.dtype((np.void, 24))).reshape(len(faces), 3)
+        return np.ascontiguousarray(np.sort(corners, axis=1)).view(np.dtype((np.void, 72))).reshape(-1)
+
+    faces = tables.face_vertices
+    face_hull = np.repeat(np.arange(len(tables)), np.diff(tables.face_start))
+    _, inverse = np.unique(np.concatenate([keys(faces), keys(triangles)]), return_inverse=True)
+    inverse = inverse.reshape(-1)
+    hull_of_key = np.full(int(inverse.max()) + 1, -1, np.int64)
+    hull_of_key[inverse[:len(faces)]] = face_hull
+    part_of[:] = hull_of_key[inverse[len(faces):]]
+    return part_of
 
     def keys(faces):  # one 72-byte key per triangle, its three corners in byte order
         corners = np.ascontiguousarray(faces, np.float64).view(np.dtype((np.void, 24))).reshape(len(faces), 3)
