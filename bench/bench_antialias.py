@@ -41,13 +41,16 @@ def timed(scene, settings, repeats: int = 1):
     return out, best
 
 
-def blend_scene(path: Path, width: int):
-    """The core scene of a .blend at ``width`` pixels across (Blender's exporter, the engine's path)."""
+def blend_scene(path: Path, width: int, edit=None):
+    """The core scene of a .blend at ``width`` pixels across (Blender's exporter, the engine's path);
+    ``edit()``, if given, changes the opened file first (``bench_geometry``'s subdivision level)."""
     import bpy
     import lazyvis_addon
     from lazyvis_addon.blender.export import export_depsgraph
     lazyvis_addon.register()  # the .blend names the LazyVis engine and carries its settings
     bpy.ops.wm.open_mainfile(filepath=str(path), load_ui=False)
+    if edit is not None:
+        edit()
     blender_scene = bpy.context.scene
     render_settings = blender_scene.render
     height = max(1, round(width * render_settings.resolution_y / render_settings.resolution_x))

@@ -22,7 +22,9 @@ Per .blend and width (the height follows the .blend's aspect), measured:
   is fitted on whole-frame renders at the lowest and highest sample count instead (a window of 64 pixels
   costs Cycles its scene setup only: its per-sample cost there was noise, once negative).
 Targets (PASS/FAIL printed; the exit status is 0 regardless): every sample at 512 px within 2x the
-floating boxes' LazyVis time at 512 px; suzanne_dense3 within 1.5x suzanne (level 1) at each width;
+floating boxes' LazyVis time at 512 px; suzanne_dense3 within 1.5x the same file with its Subdivision
+Surface at level 1 (row "suzanne_dense3@level1": the same three lights and camera; ``suzanne.blend`` is a
+level-1 Suzanne under two of them, so it is no measure of what subdivision costs) at each width;
 at 128 px LazyVis at least as fast as Cycles to equal error on every sample; LazyVis' error against
 the reference under 0.01 % (1e-4) on every sample.
 """
@@ -56,14 +58,23 @@ COUNTERS = ("edge_records", "nodes_visited", "edge_tests", "arcs", "pieces", "de
             "pairs_stored", "max_blockers_per_couple")
 CYCLES_ERROR_FLOOR, ERROR_TARGET = 0.01, 1e-4  # Cycles to max(LazyVis error, 1 %); LazyVis vs reference
 BOXES_TIME_FACTOR, DENSE3_TIME_FACTOR = 2.0, 1.5
+LEVEL1_ROW = "suzanne_dense3@level1"  # the subdivision target's baseline (LazyVis' time only)
 
 
-def load_blend(path: Path, width: int, filter_width: float | None):
-    """The core scene of a .blend at ``width`` pixels and the Settings the render engine would use."""
+def load_blend(path: Path, width: int, filter_width: float | None, subdivision: int | None = None):
+    """The core scene of a .blend at ``width`` pixels and the Settings the render engine would use;
+    ``subdivision``: every Subdivision Surface modifier's viewport and render levels set to it first."""
     import bpy
     import lazyvis_addon
     from lazyvis_addon.blender.properties import settings_from_scene
-    scene = blend_scene(path, width)
+
+    def subdivided():
+        for obj in bpy.data.objects:
+            for modifier in getattr(obj, "modifiers", ()):
+                if modifier.type == "SUBSURF":
+                    modifier.levels = modifier.render_levels = subdivision
+
+    scene = blend_scene(path, width, None if subdivision is None else subdivided)
     settings = settings_from_scene(bpy.context.scene)
     lazyvis_addon.unregister()  # blend_scene registers the add-on on every call; the file stays open
     return scene, settings if filter_width is None else replace(settings, filter_width=filter_width)
@@ -102,12 +113,14 @@ def lit_border(scene, settings: Settings, width: int, height: int, max_pixels: i
     return border
 
 
-def measure_lazyvis(path: Path, width: int, args):
-    """Full-frame LazyVis render at default settings: the row of numbers and the RGB image."""
-    scene, settings = load_blend(path, width, args.filter_width)
+def measure_lazyvis(path: Path, width: int, args, subdivision: int | None = None):
+    """Full-frame LazyVis render at default settings: the row of numbers and the RGB image (``subdivision``:
+    as ``load_blend``'s; the row is then named ``STEM@levelN``)."""
+    scene, settings = load_blend(path, width, args.filter_width, subdivision)
     out, seconds = timed(scene, settings, args.repeats)
     stats = out.stats
-    row = dict(scene=path.stem, width=scene.camera.width, height=scene.camera.height,
+    name = path.stem if subdivision is None else f"{path.stem}@level{subdivision}"
+    row = dict(scene=name, width=scene.camera.width, height=scene.camera.height,
                triangles=len(scene.triangles), lazyvis_seconds=seconds,
                stage_seconds={name: float(value) for name, value in stats["stage_seconds"].items()},
                counters={name: int(stats[name]) for name in COUNTERS if name in stats},
@@ -227,8 +240,9 @@ def print_table(rows, width: int) -> None:
               "reference integrator has no lift); their times with the .blend's offsets")
 
 
-def target_checks(rows, widths) -> list[dict]:
-    by_name = {(row["scene"], row["width"]): row for row in rows}
+def target_checks(rows, widths, baseline=()) -> list[dict]:
+    """PASS / FAIL / n/a per target; ``baseline``: rows timed only (``LEVEL1_ROW``)."""
+    by_name = {(row["scene"], row["width"]): row for row in [*rows, *baseline]}
     checks = []
 
     def check(label: str, passed) -> None:
@@ -243,13 +257,13 @@ def target_checks(rows, widths) -> list[dict]:
     if not at_512:
         check(f"512 px within {BOXES_TIME_FACTOR}x floating boxes (512 px not measured)", None)
     for width in widths:
-        suzanne, dense3 = by_name.get(("suzanne", width)), by_name.get(("suzanne_dense3", width))
-        if suzanne and dense3:
-            check(f"{width} px suzanne_dense3 {dense3['lazyvis_seconds']:.2f} s <= {DENSE3_TIME_FACTOR}x suzanne "
-                  f"({DENSE3_TIME_FACTOR * suzanne['lazyvis_seconds']:.2f} s)",
-                  dense3["lazyvis_seconds"] <= DENSE3_TIME_FACTOR * suzanne["lazyvis_seconds"])
+        level1, dense3 = by_name.get((LEVEL1_ROW, width)), by_name.get(("suzanne_dense3", width))
+        if level1 and dense3:
+            check(f"{width} px suzanne_dense3 {dense3['lazyvis_seconds']:.2f} s <= {DENSE3_TIME_FACTOR}x {LEVEL1_ROW} "
+                  f"({DENSE3_TIME_FACTOR * level1['lazyvis_seconds']:.2f} s)",
+                  dense3["lazyvis_seconds"] <= DENSE3_TIME_FACTOR * level1["lazyvis_seconds"])
         else:
-            check(f"{width} px suzanne_dense3 <= {DENSE3_TIME_FACTOR}x suzanne (a scene is missing)", None)
+            check(f"{width} px suzanne_dense3 <= {DENSE3_TIME_FACTOR}x {LEVEL1_ROW} (a scene is missing)", None)
     at_128 = [row for row in rows if row["width"] == 128]
     for row in at_128:
         check(f"128 px {row['scene']} LazyVis {row['lazyvis_seconds']:.2f} s <= Cycles to "
@@ -280,7 +294,7 @@ def main() -> int:
     blends = [path for path in args.blends if path.exists()]
     print("".join(f"skipped (missing): {path}\n" for path in args.blends if not path.exists()), end="")
     render(fence(32), Settings())  # warm-up
-    measured, failed = [], []
+    measured, failed, baseline = [], [], []
     for path in blends:  # every full-frame LazyVis render before any reference or Cycles render
         for width in args.resolutions:
             print(f"LazyVis {path.stem} at {width} px ...", flush=True)
@@ -288,6 +302,9 @@ def main() -> int:
                 measured.append((path, *measure_lazyvis(path, width, args)))
             except MemoryError as error:  # a bench reports: note it, go on with the other scenes
                 failed.append(dict(scene=path.stem, width=width, failed=f"LazyVis: MemoryError {error}"))
+            if path.stem == "suzanne_dense3":  # the subdivision target's baseline: timed, not compared
+                print(f"LazyVis {LEVEL1_ROW} at {width} px ...", flush=True)
+                baseline.append(measure_lazyvis(path, width, args, subdivision=1)[0])
     with tempfile.TemporaryDirectory() as scratch:
         for path, row, image in measured:
             print(f"reference and Cycles {path.stem} at {row['width']} px ...", flush=True)
@@ -296,18 +313,21 @@ def main() -> int:
             except MemoryError as error:
                 row["failed"] = f"reference: MemoryError {error}"
     rows = [row for _, row, _ in measured if "failed" not in row]
+    for row in baseline:
+        print(f"{row['scene']} at {row['width']} px (LazyVis only): {row['lazyvis_seconds']:.2f} s, "
+              f"{row['triangles']} triangles")
     failed += [row for _, row, _ in measured if "failed" in row]
     for row in failed:
         print(f"FAILED {row['scene']} at {row['width']} px: {row['failed']}")
     for width in args.resolutions:
         print_table(rows, width)
-    checks = target_checks(rows, args.resolutions) + [
+    checks = target_checks(rows, args.resolutions, baseline) + [
         dict(check=f"{row['width']} px {row['scene']} renders", result="FAIL") for row in failed]
     print("\ntargets")
     for item in checks:
         print(f"  {item['result']:4s}  {item['check']}")
     if args.json:
-        args.json.write_text(json.dumps(dict(rows=rows, failed=failed, checks=checks), indent=1))
+        args.json.write_text(json.dumps(dict(rows=rows, baseline=baseline, failed=failed, checks=checks), indent=1))
     return 0
 
 
