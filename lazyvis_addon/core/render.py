@@ -258,16 +258,22 @@ def _primary(scene: Scene, tracer, extent: float, settings: Settings, progress: 
     """Camera rays through pixel centres of ``window`` (default: the camera's) and what they see."""
     camera = scene.camera
     xs, ys = window_pixels(camera, window)
-    parts = []
+    frame = None  # the window's arrays, filled batch by batch (a list of parts and their concatenation
+    # held the frame twice: 3.8 GB of a 3840 x 2160 render's peak, against 2.5 GB after this stage)
     progress.begin_stage("Camera rays", len(xs))
-    for start in range(0, len(xs), settings.pixel_batch * 4):  # batches of pixels
+    for start in range(0, max(len(xs), 1), settings.pixel_batch * 4):  # batches of pixels
         rows = slice(start, start + settings.pixel_batch * 4)
         origins, directions = camera_rays(camera, xs[rows], ys[rows])
         hits = tracer.intersect(origins, directions, clip_distance(camera, directions))
-        parts.append(shade_hits(scene, origins, directions, hits.index_triangle, hits.u, hits.v, extent))
+        part = shade_hits(scene, origins, directions, hits.index_triangle, hits.u, hits.v, extent)
+        if frame is None:
+            frame = {f.name: np.empty((len(xs), *getattr(part, f.name).shape[1:]), getattr(part, f.name).dtype)
+                     for f in fields(SurfacePoints)}
+        for name, array in frame.items():
+            array[rows] = getattr(part, name)
         progress.advance(len(origins))
     progress.end_stage()
-    return SurfacePoints(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(SurfacePoints)))
+    return SurfacePoints(**frame)
 
 
 # Counters the silhouette pass adds to the render's stats.
