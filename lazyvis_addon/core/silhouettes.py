@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from . import arcs as arcs_module, arrangement as arrangement_module, detection as detection_module
+from . import arrangement as arrangement_module, detection as detection_module
 from .arcs import Arcs, _cone_planes, cone_of_light
 from .arrangement import compile_arrangement, jumps_between, visible_fans
 from .emitters import compile_emitters, hull_faces_in_scene
