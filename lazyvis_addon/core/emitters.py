@@ -918,18 +918,6 @@ def hull_faces_in_scene(tables: HullTables | None, triangles: np.ndarray) -> np.
     part_of[:] = hull_of_key[inverse[len(faces):]]
     return part_of
 
-    def keys(faces):  # one 72-byte key per triangle, its three corners in byte order
-        corners = np.ascontiguousarray(faces, np.float64).view(np.dtype((np.void, 24))).reshape(len(faces), 3)
-        return np.ascontiguousarray(np.sort(corners, axis=1)).view(np.dtype((np.void, 72))).reshape(-1)
-
-    scene_keys = keys(triangles)
-    for h in others:  # emitters: a handful
-        faces = tables.face_vertices[tables.face_start[h]:tables.face_start[h + 1]]
-        _, inverse = np.unique(np.concatenate([keys(faces), scene_keys]), return_inverse=True)
-        inverse = inverse.reshape(-1)
-        part_of[np.isin(inverse[len(faces):], inverse[:len(faces)])] = h
-    return part_of
-
 
 def crowded_hulls(tables: HullTables | None, triangles: np.ndarray, part_of: np.ndarray,
                   batch: int = 4096) -> np.ndarray:
