@@ -50,11 +50,14 @@ from .trace import RayTracer
 
 
 def refine_pixels(scene: Scene, surface, radiance: np.ndarray, shape: tuple[int, int], settings: Settings,
-                  tracer=None) -> tuple[np.ndarray, np.ndarray]:
+                  tracer=None, window=None, radiance_floor: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The pixels to supersample and the radiance step at each.
 
     ``tracer``: the render's ray tracer, for the ring of camera rays just outside the window (a temporary
-    one is built over ``scene.triangles`` when None).
+    one is built over ``scene.triangles`` when None). ``window``: the full-frame pixel bounds (x0, y0, x1,
+    y1) of ``surface``'s grid (default the camera's window; a band of it, for the marks of the band's
+    inner rows). ``radiance_floor``: differences below it never mark a pair (default 1e-4 of the largest
+    radiance seen; a band takes the whole window's).
 
     Returns
     -------
@@ -76,9 +79,11 @@ def refine_pixels(scene: Scene, surface, radiance: np.ndarray, shape: tuple[int,
              surface.shading_normal.reshape(height, width, 3), seen.reshape(height, width, 3))
     reaches_out = settings.filter_reach > 0.5  # samples leave the pixel: the ring outside matters
     if reaches_out:
-        grids = _with_outside_ring(scene, grids, tracer, settings)
+        grids = _with_outside_ring(scene, grids, tracer, settings, window)
+    if radiance_floor is None:
+        radiance_floor = 1e-4 * max(float(seen.max()) if seen.size else 0.0, 1e-30)
     mask = refine_mask(*grids, relative_threshold=settings.aa_threshold, normal_angle=settings.aa_threshold,
-                       radiance_floor=1e-4 * max(float(seen.max()), 1e-30))
+                       radiance_floor=radiance_floor)
     # Not dilated by the filter's reach: on the fence and rods scenes that marked 35% more pixels for no
     # measurable change in error (the Blackman-Harris tails carry little weight).
     mask = close_holes(mask)
@@ -177,12 +182,13 @@ def _material(scene: Scene, index_triangle: np.ndarray) -> np.ndarray:
     return np.where(index_triangle >= 0, scene.material_index[np.maximum(index_triangle, 0)], -1)
 
 
-def _with_outside_ring(scene: Scene, grids, tracer, settings: Settings):
+def _with_outside_ring(scene: Scene, grids, tracer, settings: Settings, window=None):
     """``refine_mask``'s (H, W) grids grown by one pixel on every side: triangle, material and shading
     normal seen by camera rays through the centres of the pixels around the window (outside the frame too),
-    radiance copied from the nearest window pixel (unknown outside, so it marks nothing there)."""
+    radiance copied from the nearest window pixel (unknown outside, so it marks nothing there). ``window``:
+    the grids' full-frame pixel bounds (default the camera's window)."""
     index_triangle, material, normal, seen = grids
-    x0, y0, x1, y1 = scene.camera.window
+    x0, y0, x1, y1 = scene.camera.window if window is None else window
     ys, xs = np.mgrid[y0 - 1:y1 + 1, x0 - 1:x1 + 1]
     ring = np.ones(xs.shape, bool)
     ring[1:-1, 1:-1] = False

@@ -29,10 +29,12 @@ class Progress:
         self._done = 0
 
     # -- called by the core ------------------------------------------------------------------------
-    def begin_stage(self, name: str, total: int = 0) -> None:
-        """Start a named stage of ``total`` work units (0 when unknown); closes the previous stage."""
+    def begin_stage(self, name: str, total: int = 0, done: int = 0) -> None:
+        """Start a named stage of ``total`` work units (0 when unknown), ``done`` of them already (a stage
+        taken up again for the next band of the frame); closes the previous stage. A stage's seconds add up
+        over its bands."""
         self.end_stage()
-        self._stage, self._stage_start, self._total, self._done = name, time.perf_counter(), int(total), 0
+        self._stage, self._stage_start, self._total, self._done = name, time.perf_counter(), int(total), int(done)
         self.on_stage(name, self._total)
         self.check_cancel()
 
