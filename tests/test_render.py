@@ -15,7 +15,7 @@ from lazyvis_addon.core.blockers import BlockerPolygons
 from lazyvis_addon.core.demo_scenes import plane_under_light, quad_triangles
 from lazyvis_addon.core.geometry import light_frames, projected_solid_angle
 from lazyvis_addon.core.illumination import analytic, outgoing_radiance, visible_pieces
-from lazyvis_addon.core.render import _primary
+from lazyvis_addon.core.render import _primary, band_rows_for
 from lazyvis_addon.core.settings import VISIBILITY_METHODS
 from lazyvis_addon.core.surface import scene_extent
 from lazyvis_addon.core.trace import RayTracer
@@ -206,6 +206,25 @@ def test_window_renders_the_same_pixels_as_the_full_frame(boxes_scene):
     full = render(boxes_scene, Settings()).combined[30:55, 20:60, :3]
     part = render(tile, Settings()).combined[..., :3]
     assert relative_rmse(part, full) < 0.01
+
+
+PASSES = ("combined", "depth", "normal", "sample_count", "blocker_count", "umbra")
+
+
+@pytest.mark.parametrize("budget_mb", [8.0, 12.0])
+def test_bands_of_rows_render_the_same_pixels_as_one_band(budget_mb):
+    """A smaller memory budget shades the frame in more bands of rows: the image and every pass stay the
+    same bit for bit at the default settings (anti-aliasing, its coverage rays and pooling across the
+    bands' borders included)."""
+    scene = demo_scenes.floating_boxes(resolution=96, n_boxes=16)
+    whole = render(scene, Settings(threads=2))
+    banded = render(scene, Settings(threads=2, memory_budget_mb=budget_mb))
+    assert whole.stats["bands"] == 1 and banded.stats["bands"] == -(-96 // band_rows_for(budget_mb, 96)) >= 2
+    assert whole.stats["aa_pixels"] > 100  # the bands' borders cross anti-aliased edges
+    for name in PASSES:
+        np.testing.assert_array_equal(getattr(banded, name), getattr(whole, name), err_msg=name)
+    assert banded.stats["aa_samples_shaded"] == whole.stats["aa_samples_shaded"]
+    assert banded.stats["aa_settled_pixels"] == whole.stats["aa_settled_pixels"]
 
 
 def test_same_seed_same_image_other_seed_other_noise(boxes_scene):

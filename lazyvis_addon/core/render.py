@@ -9,6 +9,7 @@ from __future__ import annotations
 import resource
 import time
 from dataclasses import dataclass, field, fields
+from typing import Callable
 
 import numpy as np
 
@@ -99,25 +100,182 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
     if frames.hulls is not None:
         _warn_nearby_geometry(scene, frames, progress)
     pixel_global = _global_pixels(camera)
-    polygons = None  # the silhouettes need no blocker polygons (nor their convex parts' setup)
-    if not settings.uses_silhouettes:
-        polygons = BlockerPolygons.from_triangles(scene.triangles, merge=settings.merge_quads)
-        stats["blocker_polygons"] = len(polygons)
-    lazy = settings.integrator in ("analytic", "reduced_mc") and not settings.uses_silhouettes
-    blockers = None
-    edges = None
     if settings.uses_silhouettes:
-        surface = _primary(scene, tracer, extent, settings, progress)
-        progress.begin_stage("Building edge tree")
-        edges = MeshEdges.from_triangles(scene.triangles, frames)
-        progress.end_stage()
-        stats["edge_records"] = len(edges)
-        # Numba compiles pass 2's kernels on a machine's first render (about 10 s), then its cache serves
-        # them in milliseconds: a stage of its own, so the wait is named and timed.
-        progress.begin_stage("Compiling kernels")
-        stats["kernels_compiled"] = compile_kernels()
-        progress.end_stage()
-    elif lazy:
+        frame = _silhouette_frame(scene, tracer, extent, frames, settings, progress, stats, pixel_global)
+    else:
+        frame = _blocker_map_frame(scene, tracer, extent, frames, settings, progress, stats, pixel_global)
+
+    resolved = None
+    if settings.aa_samples > 1 and (frame.grid.index_triangle >= 0).any():
+        resolved = _antialias(scene, tracer, extent, frames, settings, progress, stats, pixel_global, frame)
+    output = frame.output
+    if resolved is not None:
+        pixels, pooled, counts = resolved
+        output.combined.reshape(-1, 4)[pixels] = pooled
+        output.sample_count.reshape(-1)[pixels] = counts
+    if len(scene.seen):
+        # Lights the camera sees add their radiance over whatever lies behind them (Cycles: a light is no
+        # occluder for camera rays and adds no alpha).
+        drawn, outlined = draw_seen_lights(scene.seen, camera, tracer, settings, pixel_global, progress)
+        output.combined[..., :3] += drawn.reshape(height, width, 3).astype(np.float32)
+        counts = output.sample_count.reshape(-1)
+        counts[outlined] = np.maximum(counts[outlined], OUTLINE_SAMPLES)
+    stats["rays_cast"] = tracer.n_rays_cast
+    stats["seconds"] = time.perf_counter() - started
+    stats["stage_seconds"] = dict(progress.stage_seconds)
+    stats["peak_memory_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    output.stats = stats
+    output.warnings = list(progress.warnings)
+    return output
+
+
+@dataclass
+class CentreGrid:
+    """What anti-aliasing reads of every pixel centre of the window (N = H * W, row-major): the triangle seen
+    (N,) int32 or int64 (-1: none), its shading normal (N, 3) and emitted radiance (N, 3) float64 (None:
+    none emits)."""
+
+    index_triangle: np.ndarray
+    shading_normal: np.ndarray
+    emission: np.ndarray
+
+
+@dataclass
+class ShadedFrame:
+    """Pass 2's result over the window, before anti-aliasing.
+
+    Attributes
+    ----------
+    output : RenderOutput        every pass composed from the pixel centres.
+    radiance : (N, 3) float64    reflected radiance at the centres.
+    grid : CentreGrid            the centres' triangles, normals and emission.
+    centres : callable           window-local pixels (P,) int64 -> their SurfacePoints (the ones pass 2
+                                 shaded: kept, or traced again, which gives the same points).
+    band_rows : int              rows per band of the frame (the memory budget's).
+    lazy_state, polygons, verify, edges: what the anti-aliasing samples are shaded with.
+    """
+
+    output: RenderOutput
+    radiance: np.ndarray
+    grid: CentreGrid
+    centres: Callable
+    band_rows: int
+    lazy_state: tuple | None = None
+    polygons: BlockerPolygons | None = None
+    verify: bool = False
+    edges: MeshEdges | None = None
+
+
+# Bytes per pixel of a band's pixel centres and their shading (``SurfacePoints``, about 230, the band's
+# radiance and composed passes), and the share of the memory budget a band may take: pass 2's batches
+# and the frame's own arrays (about 130 bytes a pixel) take the rest.
+BAND_PIXEL_BYTES = 512
+BAND_BUDGET_SHARE = 0.25
+# Anti-aliasing samples shaded together at most, per MB of the memory budget (a sample's surface point
+# and shading take about as much as a pixel centre's).
+AA_SAMPLES_PER_MB = (1 << 20) * BAND_BUDGET_SHARE / BAND_PIXEL_BYTES
+
+
+def band_rows_for(memory_budget_mb: float, width: int) -> int:
+    """Rows of the window per band: the band's centres within BAND_BUDGET_SHARE of the budget (at least
+    one row: a budget that small renders slowly, it does not fail)."""
+    return max(1, int(memory_budget_mb * (1 << 20) * BAND_BUDGET_SHARE // (BAND_PIXEL_BYTES * max(width, 1))))
+
+
+def _silhouette_frame(scene: Scene, tracer, extent: float, frames, settings: Settings, progress: Progress,
+                      stats: dict, pixel_global: np.ndarray) -> ShadedFrame:
+    """Camera rays, pass 2 by silhouettes and the composed passes, band after band of rows: a band's
+    centres live only while it is shaded, so memory follows the band (``band_rows_for``), not the frame.
+    Every pixel's value depends on its own centre alone, so bands do not change the image."""
+    camera = scene.camera
+    height, width = camera.window_shape
+    n_pixels = height * width
+    x0, y0, x1, _ = camera.window
+    progress.begin_stage("Building edge tree")
+    edges = MeshEdges.from_triangles(scene.triangles, frames)
+    progress.end_stage()
+    stats["edge_records"] = len(edges)
+    # Numba compiles pass 2's kernels on a machine's first render (about 10 s), then its cache serves
+    # them in milliseconds: a stage of its own, so the wait is named and timed.
+    progress.begin_stage("Compiling kernels")
+    stats["kernels_compiled"] = compile_kernels()
+    progress.end_stage()
+
+    rows_per_band = band_rows_for(settings.memory_budget_mb, width)
+    # The frame's own arrays, about 100 bytes a pixel: what anti-aliasing reads of the centres (emission
+    # only once a band emits: most scenes' surfaces do not) and the composed passes.
+    radiance = np.zeros((n_pixels, 3))
+    grid = CentreGrid(np.full(n_pixels, -1, np.int32 if len(scene.triangles) < 2 ** 31 else np.int64),
+                      np.zeros((n_pixels, 3)), None)
+    combined = np.zeros((n_pixels, 4), np.float32)
+    depth = np.full(n_pixels, BACKGROUND_DEPTH, np.float32)
+    normal = np.zeros((n_pixels, 3), np.float32)
+    arcs_per_pixel = np.zeros(n_pixels, np.int32)
+    umbra = np.zeros((n_pixels, len(frames)), bool)
+    clamped, near_hulls = set(), {}
+    kept = None  # the one band's centres when the frame is a single band (anti-aliasing reuses them)
+    for first_row in range(0, height, rows_per_band):  # bands of rows
+        last_row = min(first_row + rows_per_band, height)
+        rows = slice(first_row * width, last_row * width)
+        window = (x0, y0 + first_row, x1, y0 + last_row)
+        surface = _primary(scene, tracer, extent, settings, progress, window, stage=(n_pixels, rows.start))
+        if frames.any_facing:
+            clamped |= _clamped_caps(surface, frames)
+        if frames.hulls is not None:
+            for hull, count in _near_hull_misses(surface, frames).items():
+                near_hulls[hull] = near_hulls.get(hull, 0) + count
+        band, band_stats, _ = _illuminate(surface, frames, None, tracer, None, settings, pixel_global[rows], progress,
+                                          scene.materials, False, edges, stage=(n_pixels, rows.start))
+        radiance[rows] = band
+        grid.index_triangle[rows] = surface.index_triangle
+        grid.shading_normal[rows] = surface.shading_normal
+        if grid.emission is None and surface.emission.any():
+            grid.emission = np.zeros((n_pixels, 3))
+        if grid.emission is not None:
+            grid.emission[rows] = surface.emission
+        combined[rows], depth[rows], normal[rows] = _compose_centres(scene, surface, band, settings)
+        arcs_per_pixel[rows] = np.minimum(band_stats.pop("arcs_per_pixel"), np.iinfo(np.int32).max)
+        umbra[rows] = band_stats.pop("umbra")
+        for name, value in band_stats.items():
+            if name == "max_blockers_per_couple":
+                stats[name] = max(stats.get(name, 0), value)
+            else:
+                stats[name] = stats.get(name, 0) + value
+        kept = surface if first_row == 0 and last_row == height else None
+        del surface, band  # before the next band's are made: one band's centres at a time
+    progress.end_stage()
+    stats["bands"] = -(-height // rows_per_band)
+    _warn_clamped_caps(clamped, progress)
+    _warn_near_hulls(near_hulls, progress)
+    # The passes' blocker count becomes the silhouette arcs crossing the pixel's lights.
+    stats["missed_pairs_found"] = []
+    stats["pairs_stored"] = int(arcs_per_pixel.sum(dtype=np.int64))
+    count = arcs_per_pixel
+    folded = _folded_umbra(frames, umbra, scene.light_count)
+    output = RenderOutput(combined.reshape(height, width, 4), count.reshape(height, width),
+                          folded.reshape(height, width, scene.light_count), depth.reshape(height, width),
+                          normal.reshape(height, width, 3), np.ones((height, width), np.int32))
+
+    def centres(pixels: np.ndarray) -> SurfacePoints:
+        if kept is not None:
+            return kept.take(pixels)
+        xs, ys = window_pixels(camera)
+        return _surface_points(scene, tracer, extent, settings, xs[pixels], ys[pixels])
+    return ShadedFrame(output, radiance, grid, centres, rows_per_band, edges=edges)
+
+
+def _blocker_map_frame(scene: Scene, tracer, extent: float, frames, settings: Settings, progress: Progress,
+                       stats: dict, pixel_global: np.ndarray) -> ShadedFrame:
+    """Camera rays, pass 1 (the paper's blocker map, or the reference's every-triangle lists), pass 2 and
+    the composed passes over the whole window at once (the frame is not split into bands here)."""
+    camera = scene.camera
+    height, width = camera.window_shape
+    n_pixels = height * width
+    polygons = BlockerPolygons.from_triangles(scene.triangles, merge=settings.merge_quads)
+    stats["blocker_polygons"] = len(polygons)
+    lazy = settings.integrator in ("analytic", "reduced_mc")
+    blockers = None
+    if lazy:
         # Pass 1 runs over the window grown by a margin; pass 2 shades only the window.
         outer = _grown_window(camera, settings.window_margin)
         outer_surface = _primary(scene, tracer, extent, settings, progress, outer)
@@ -137,10 +295,10 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
             stats.update(blockers.stats)
 
     if frames.any_facing:
-        _warn_clamped_caps(surface, frames, progress)
+        _warn_clamped_caps(_clamped_caps(surface, frames), progress)
     if frames.hulls is not None:
-        _warn_near_hulls(surface, frames, progress)
-    if not frames.cast_shadow.all() and not settings.uses_silhouettes:
+        _warn_near_hulls(_near_hull_misses(surface, frames), progress)
+    if not frames.cast_shadow.all():
         progress.warn("lights with Cast Shadow off cast shadows with the paper's blocker maps and the Monte Carlo "
                       "integrators; the default silhouettes honour it")
     if (frames.lobes != LOBES_ALL).any() and settings.integrator in ("reduced_mc", "standard_mc"):
@@ -148,11 +306,7 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
                       "integrators; the Monte Carlo integrators light every lobe")
     verify = lazy and settings.verify_rays > 0 and len(frames) > 0
     radiance, pass2_stats, missed = _illuminate(surface, frames, polygons, tracer, blockers, settings, pixel_global,
-                                                progress, scene.materials, verify, edges)
-    if edges is not None:
-        # The passes' blocker count becomes the silhouette arcs crossing the pixel's lights.
-        blockers = BlockerMap(np.repeat(np.arange(n_pixels), pass2_stats.pop("arcs_per_pixel")),
-                              np.zeros(0, np.int64), np.zeros(0, np.int64), pass2_stats.pop("umbra"))
+                                                progress, scene.materials, verify)
     stats.update(pass2_stats)
     stats["missed_pairs_found"] = []
     for _ in range(settings.refine_rounds if verify else 0):  # refinement rounds: a few
@@ -184,55 +338,148 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
         stats["reshaded_pixels"] = stats.get("reshaded_pixels", 0) + len(changed)
     if blockers is not None:
         stats["pairs_stored"] = len(blockers.pixel)
-
-    resolved = None
-    if settings.aa_samples > 1 and surface.hit.any():
-        progress.begin_stage("Anti-aliasing")
-        pixels, contrast = refine_pixels(scene, surface, radiance, (height, width), settings, tracer)
-        # Samples are allocated over every marked pixel (a pixel's share does not depend on which others
-        # need none). Under a filter far narrower than a pixel, an edge between centres rarely passes
-        # under it: camera rays tell which pixels see one triangle there, and those keep their centre.
-        counts = allocate_samples(contrast, settings.aa_samples)
-        alone = centre_suffices(scene, tracer, pixels, surface.index_triangle[pixels], settings, pixel_global)
-        pixels, contrast, counts = pixels[~alone], contrast[~alone], counts[~alone]
-        stats["aa_centre_pixels"] = int(alone.sum())
-        stats["aa_pixels"] = len(pixels)
-        if len(pixels):
-            shading = (scene, tracer, extent, settings, pixel_global, frames, polygons, progress, stats,
-                       (outer_map, outer, outer_surface) if lazy else None, verify, edges)
-            covered = settings.aa_coverage_rays > 0
-            # With coverage the pixel's centre, shaded already, is one of its samples.
-            drawn = counts - 1 if covered else counts
-            strata = surface_strata(scene)  # the surfaces coverage tells apart: once per render
-            drawn, rgba, position, triangle = _shade_until_settled(pixels, drawn, contrast, surface, radiance,
-                                                                   strata, shading)
-            counts = drawn + 1 if covered else drawn
-            stats["aa_samples_shaded"] = int(drawn.sum())
-            if covered:
-                pooled = _pool_with_coverage(scene, tracer, surface, radiance, pixels, drawn, rgba, position, triangle,
-                                             strata, settings, pixel_global, stats)
-            else:
-                owner = np.repeat(np.arange(len(pixels)), counts)
-                pooled = pool_samples(rgba, position, owner, pixels, counts, camera.window, settings)
-            resolved = (pixels, pooled, counts)
-
     progress.begin_stage("Composing passes")
-    output = _compose(scene, frames, surface, radiance, blockers, settings, (height, width), resolved)
+    combined, depth, normal = _compose_centres(scene, surface, radiance, settings)
+    count, umbra = _blocker_passes(frames, blockers, n_pixels, scene.light_count)
+    output = RenderOutput(combined.reshape(height, width, 4), count.reshape(height, width),
+                          umbra.reshape(height, width, scene.light_count), depth.reshape(height, width),
+                          normal.reshape(height, width, 3), np.ones((height, width), np.int32))
     progress.end_stage()
-    if len(scene.seen):
-        # Lights the camera sees add their radiance over whatever lies behind them (Cycles: a light is no
-        # occluder for camera rays and adds no alpha).
-        drawn, outlined = draw_seen_lights(scene.seen, camera, tracer, settings, pixel_global, progress)
-        output.combined[..., :3] += drawn.reshape(height, width, 3).astype(np.float32)
-        counts = output.sample_count.reshape(-1)
-        counts[outlined] = np.maximum(counts[outlined], OUTLINE_SAMPLES)
-    stats["rays_cast"] = tracer.n_rays_cast
-    stats["seconds"] = time.perf_counter() - started
-    stats["stage_seconds"] = dict(progress.stage_seconds)
-    stats["peak_memory_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-    output.stats = stats
-    output.warnings = list(progress.warnings)
-    return output
+    grid = CentreGrid(surface.index_triangle, surface.shading_normal, surface.emission)
+    return ShadedFrame(output, radiance, grid, surface.take, height, (outer_map, outer, outer_surface) if lazy else None,
+                       polygons, verify)
+
+
+def _antialias(scene: Scene, tracer, extent: float, frames, settings: Settings, progress: Progress, stats: dict,
+               pixel_global: np.ndarray, frame: ShadedFrame):
+    """Supersample the edge pixels of ``frame``: (pixels (P,) int64, filtered RGBA (P, 4), samples (P,)), or
+    None where no pixel needs it.
+
+    Which pixels and how many samples each is decided over the whole window (from the centres' radiance).
+    The samples are then shaded and pooled band after band of rows, each band with the pixels within
+    POOL_RING rows above and below it, whose samples its own pixels' filters reach (theirs are shaded
+    again with the next band: a pixel's samples are the same whichever band draws them)."""
+    camera = scene.camera
+    height, width = camera.window_shape
+    progress.begin_stage("Anti-aliasing")
+    pixels, contrast = _marked_pixels(scene, tracer, settings, frame)
+    # Samples are allocated over every marked pixel (a pixel's share does not depend on which others
+    # need none). Under a filter far narrower than a pixel, an edge between centres rarely passes
+    # under it: camera rays tell which pixels see one triangle there, and those keep their centre.
+    counts = allocate_samples(contrast, settings.aa_samples)
+    alone = centre_suffices(scene, tracer, pixels, frame.grid.index_triangle[pixels], settings, pixel_global)
+    pixels, contrast, counts = pixels[~alone], contrast[~alone], counts[~alone]
+    stats["aa_centre_pixels"] = int(alone.sum())
+    stats["aa_pixels"] = len(pixels)
+    if len(pixels) == 0:
+        return None
+    shading = (scene, tracer, extent, settings, pixel_global, frames, frame.polygons, progress, stats,
+               frame.lazy_state, frame.verify, frame.edges)
+    covered = settings.aa_coverage_rays > 0
+    # With coverage the pixel's centre, shaded already, is one of its samples.
+    wanted = counts - 1 if covered else counts
+    strata = surface_strata(scene)  # the surfaces coverage tells apart: once per render
+    ring = int(np.ceil(2.0 * settings.filter_reach)) + 1
+    row = pixels // width
+    pooled = np.zeros((len(pixels), 4))
+    final = np.zeros(len(pixels), np.int64)
+    stats["aa_samples_shaded"] = stats["aa_settled_pixels"] = stats["aa_coverage_rays"] = 0
+    for first_row, last_row in _sample_bands(row, wanted, height, frame.band_rows,
+                                             settings.memory_budget_mb * AA_SAMPLES_PER_MB):
+        chosen = np.flatnonzero((row >= first_row - ring) & (row < last_row + ring))
+        own = (row[chosen] >= first_row) & (row[chosen] < last_row)
+        if not own.any():
+            continue
+        band = pixels[chosen]
+        drawn, rgba, position, triangle = _shade_until_settled(band, wanted[chosen], contrast[chosen],
+                                                               frame.centres(band), frame.radiance[band], strata,
+                                                               shading, own)
+        if covered:
+            values = _pool_with_coverage(scene, tracer, frame.centres, frame.radiance, band, drawn, rgba, position,
+                                         triangle, strata, settings, pixel_global, stats)
+        else:
+            owner = np.repeat(np.arange(len(band)), drawn)
+            values = pool_samples(rgba, position, owner, band, drawn, camera.window, settings)
+        pooled[chosen[own]] = values[own]
+        final[chosen[own]] = drawn[own]
+        stats["aa_samples_shaded"] += int(drawn[own].sum())
+    progress.end_stage()
+    return pixels, pooled, final + 1 if covered else final
+
+
+# Rows around a band that its inner rows' marks depend on: a pair of neighbours marks both, and a pixel
+# with 5 of its 8 neighbours marked is marked too (``adaptive.close_holes``).
+MARK_RING = 2
+
+
+def _marked_pixels(scene: Scene, tracer, settings: Settings, frame: ShadedFrame) -> tuple[np.ndarray, np.ndarray]:
+    """``antialias.refine_pixels`` over the window, band after band of rows (each with MARK_RING rows of
+    its neighbours, and the whole window's radiance floor): the marked pixels (P,) int64, ascending, and
+    their contrast (P,), the same as the whole window's at once."""
+    height, width = scene.camera.window_shape
+    x0, y0, x1, _ = scene.camera.window
+    grid, radiance = frame.grid, frame.radiance
+    brightest = 0.0
+    for first_row in range(0, height, frame.band_rows):  # bands of rows
+        rows = slice(first_row * width, min(first_row + frame.band_rows, height) * width)
+        seen = radiance[rows] if grid.emission is None else radiance[rows] + grid.emission[rows]
+        brightest = max(brightest, float(seen.max(initial=0.0)))
+    floor = 1e-4 * max(brightest, 1e-30)
+    pixels, contrast = [], []
+    for first_row in range(0, height, frame.band_rows):  # bands of rows
+        last_row = min(first_row + frame.band_rows, height)
+        low, high = max(first_row - MARK_RING, 0), min(last_row + MARK_RING, height)
+        rows = slice(low * width, high * width)
+        band = CentreGrid(grid.index_triangle[rows], grid.shading_normal[rows],
+                          np.zeros((rows.stop - rows.start, 3)) if grid.emission is None else grid.emission[rows])
+        marked, step = refine_pixels(scene, band, radiance[rows], (high - low, width), settings, tracer,
+                                     (x0, y0 + low, x1, y0 + high), floor)
+        inner = (marked // width + low >= first_row) & (marked // width + low < last_row)
+        pixels.append(marked[inner] + low * width)
+        contrast.append(step[inner])
+    return np.concatenate(pixels), np.concatenate(contrast)
+
+
+def _sample_bands(row: np.ndarray, samples: np.ndarray, height: int, most_rows: int, most_samples: float):
+    """Bands (first_row, last_row) of the window for anti-aliasing: at most ``most_rows`` rows and, where a
+    row allows, about ``most_samples`` samples (``samples`` (P,) of the pixels in rows ``row`` (P,))."""
+    per_row = np.bincount(row, weights=samples, minlength=height)
+    bands = []
+    first = 0
+    while first < height:  # bands: a handful
+        taken = np.cumsum(per_row[first:first + most_rows])
+        rows = max(1, int(np.searchsorted(taken, most_samples, side="right")))
+        bands.append((first, min(first + rows, height)))
+        first += rows
+    return bands
+
+
+def _compose_centres(scene: Scene, surface: SurfacePoints, radiance: np.ndarray, settings: Settings):
+    """The passes the pixel centres give: RGBA (N, 4), planar depth (N,) and shading normal (N, 3), float32."""
+    hit = surface.hit
+    combined = sample_rgba(radiance, surface, scene, settings).astype(np.float32)
+    depth = np.full(len(hit), BACKGROUND_DEPTH, np.float32)
+    depth[hit] = planar_depth(scene.camera, surface.position[hit])
+    normal = np.zeros((len(hit), 3), np.float32)
+    normal[hit] = surface.shading_normal[hit]
+    return combined, depth, normal
+
+
+def _blocker_passes(frames, blockers: BlockerMap | None, n_pixels: int, n_lights: int):
+    """Blocker pairs (N,) int32 and umbra (N, lights) bool per pixel of a blocker map (zeros without one)."""
+    if blockers is None:
+        return np.zeros(n_pixels, np.int32), np.zeros((n_pixels, n_lights), bool)
+    return blockers.count_per_pixel(n_pixels), _folded_umbra(frames, blockers.umbra, n_lights)
+
+
+def _folded_umbra(frames, umbra: np.ndarray, n_lights: int) -> np.ndarray:
+    """(N, lights) bool: umbra (N, frames) with a lamp's virtual lights (its three planes) folded into it."""
+    if umbra.shape[1] == n_lights:
+        return umbra
+    folded = np.zeros((len(umbra), n_lights), bool)
+    for light, target in enumerate(frames.scene_light):  # frames: a handful
+        folded[:, target] |= umbra[:, light]
+    return folded
 
 
 def _global_pixels(camera, window=None) -> np.ndarray:
@@ -254,13 +501,24 @@ def _inner_indices(window, outer) -> np.ndarray:
 
 
 def _primary(scene: Scene, tracer, extent: float, settings: Settings, progress: Progress,
-             window=None) -> SurfacePoints:
-    """Camera rays through pixel centres of ``window`` (default: the camera's) and what they see."""
+             window=None, stage: tuple[int, int] | None = None) -> SurfacePoints:
+    """Camera rays through pixel centres of ``window`` (default: the camera's) and what they see.
+    ``stage``: (total, done) of the "Camera rays" stage when the window is a band of a larger frame."""
+    xs, ys = window_pixels(scene.camera, window)
+    total, done = stage if stage is not None else (len(xs), 0)
+    progress.begin_stage("Camera rays", total, done)
+    surface = _surface_points(scene, tracer, extent, settings, xs, ys, progress)
+    progress.end_stage()
+    return surface
+
+
+def _surface_points(scene: Scene, tracer, extent: float, settings: Settings, xs: np.ndarray, ys: np.ndarray,
+                    progress: Progress | None = None) -> SurfacePoints:
+    """What camera rays through the centres of full-frame pixels (xs, ys) (N,) int64 see, in batches (a
+    pixel's point does not depend on the batch it is traced in)."""
     camera = scene.camera
-    xs, ys = window_pixels(camera, window)
     frame = None  # the window's arrays, filled batch by batch (a list of parts and their concatenation
     # held the frame twice: at 3840 x 2160 this stage peaked at 3.77 GB, 2.16 GB filled in place)
-    progress.begin_stage("Camera rays", len(xs))
     for start in range(0, max(len(xs), 1), settings.pixel_batch * 4):  # batches of pixels
         rows = slice(start, start + settings.pixel_batch * 4)
         origins, directions = camera_rays(camera, xs[rows], ys[rows])
@@ -271,8 +529,8 @@ def _primary(scene: Scene, tracer, extent: float, settings: Settings, progress: 
                      for f in fields(SurfacePoints)}
         for name, array in frame.items():
             array[rows] = getattr(part, name)
-        progress.advance(len(origins))
-    progress.end_stage()
+        if progress is not None:
+            progress.advance(len(origins))
     return SurfacePoints(**frame)
 
 
@@ -288,8 +546,10 @@ BATCHES_PER_THREAD = 8
 
 def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: BlockerMap | None, settings: Settings,
                 pixel_global: np.ndarray, progress: Progress, materials, verify: bool = False,
-                edges: MeshEdges | None = None) -> tuple[np.ndarray, dict, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+                edges: MeshEdges | None = None, stage: tuple[int, int] | None = None
+                ) -> tuple[np.ndarray, dict, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Pass 2 over pixel batches: by the blocker map ``blockers``, or by silhouettes when ``edges`` is given.
+    ``stage``: (total, done) of the "Illumination" stage when the points are a band of a larger frame.
 
     Returns
     -------
@@ -360,7 +620,7 @@ def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: Bloc
         missed = tuple(np.concatenate([f[i] for f in found]) if found else empty for i in range(3))
         return start, stop, result, n_pieces, rounds, missed + (verify_rays,), None
 
-    progress.begin_stage("Illumination", n_pixels)
+    progress.begin_stage("Illumination", *(stage if stage is not None else (n_pixels, 0)))
     units = [min(start + batch, n_pixels) - start for start in starts]
     found = []
     for start, stop, result, n_pieces, rounds, missed, extra in map_batches(shade, range(len(starts)), threads,
@@ -521,14 +781,16 @@ def _shade_samples(pixels: np.ndarray, counts: np.ndarray, scene: Scene, tracer,
     return sample_rgba(sub_radiance, sub, scene, settings), position, sub.index_triangle
 
 
-def _shade_until_settled(pixels: np.ndarray, drawn: np.ndarray, contrast: np.ndarray, surface: SurfacePoints,
-                         radiance: np.ndarray, strata: np.ndarray, shading: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _shade_until_settled(pixels: np.ndarray, drawn: np.ndarray, contrast: np.ndarray, centre: SurfacePoints,
+                         centre_radiance: np.ndarray, strata: np.ndarray, shading: tuple, counted: np.ndarray | None = None
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Shade the anti-aliasing samples of ``pixels`` (P,): a pilot of ``PILOT_SAMPLES`` each, then the rest
     of ``drawn`` (P,) only where the pilot has not settled (``antialias.settled_pixels``).
 
-    ``contrast`` (P,) is each pixel's radiance step to its neighbours, ``surface`` and ``radiance`` (H * W, 3)
-    pass 1's centres over the window, ``strata`` (T,) ``surface_strata``, ``shading`` the arguments
-    ``_shade_samples`` takes after the counts.
+    ``contrast`` (P,) is each pixel's radiance step to its neighbours, ``centre`` and ``centre_radiance``
+    (P, 3) pass 1's points and radiance at the pixels' centres, ``strata`` (T,) ``surface_strata``,
+    ``shading`` the arguments ``_shade_samples`` takes after the counts; ``counted`` (P,) bool the pixels
+    whose settling the stats count (default all).
     Returns the samples drawn per pixel (P,) int64 and ``_shade_samples``' RGBA, positions and triangles of
     them, pixel-major: each pixel's pilot, then its further samples (the next points of its sequence).
     """
@@ -538,8 +800,7 @@ def _shade_until_settled(pixels: np.ndarray, drawn: np.ndarray, contrast: np.nda
     rest = drawn - pilot
     if not rest.any():
         return drawn, rgba, position, triangle
-    centre = surface.take(pixels)
-    centre_rgba = sample_rgba(radiance[pixels], centre, scene, settings)
+    centre_rgba = sample_rgba(centre_radiance, centre, scene, settings)
     centre_stratum = stratum_of(centre.index_triangle, strata)
     pilot_stratum = stratum_of(triangle, strata)
     if settings.aa_coverage_rays > 0:
@@ -550,7 +811,8 @@ def _shade_until_settled(pixels: np.ndarray, drawn: np.ndarray, contrast: np.nda
         one_surface = np.bincount(owner, weights=pilot_stratum != centre_stratum[owner], minlength=len(pixels)) == 0
     scale = np.maximum(np.abs(centre_rgba[:, :3]).max(axis=1), contrast)
     more = ~settled_pixels(rgba, pilot, centre_rgba, one_surface, settings.aa_settle_tolerance * scale) & (rest > 0)
-    stats["aa_settled_pixels"] = stats.get("aa_settled_pixels", 0) + int((~more).sum())
+    settled = ~more if counted is None else ~more & counted
+    stats["aa_settled_pixels"] = stats.get("aa_settled_pixels", 0) + int(settled.sum())
     if not more.any():
         return pilot, rgba, position, triangle
     extra = _shade_samples(pixels[more], rest[more], *shading, first=pilot[more])
@@ -574,12 +836,13 @@ def _ranks(counts: np.ndarray) -> np.ndarray:
     return np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
 
 
-def _pool_with_coverage(scene: Scene, tracer, surface: SurfacePoints, radiance: np.ndarray, pixels: np.ndarray,
+def _pool_with_coverage(scene: Scene, tracer, centres: Callable, radiance: np.ndarray, pixels: np.ndarray,
                         drawn: np.ndarray, rgba: np.ndarray, position: np.ndarray, triangle: np.ndarray,
                         strata: np.ndarray, settings: Settings, pixel_global: np.ndarray, stats: dict) -> np.ndarray:
     """Filtered RGBA (P, 4) of the anti-aliased ``pixels`` from their ``drawn`` (P,) shaded samples (RGBA
     (N, 4), raster positions (N, 2), triangles seen (N,)), coverage rays and the centres of the pixels
-    under their filters (pass 1's radiance (H * W, 3) over the window's ``surface``).
+    under their filters (pass 1's radiance (H * W, 3) over the window; ``centres``: window-local pixels ->
+    their SurfacePoints).
 
     Which surface each sample, coverage ray and centre sees: the jumps between surfaces come from the
     cheap coverage rays, and the shaded points only average within each surface (``pool_samples``).
@@ -587,60 +850,31 @@ def _pool_with_coverage(scene: Scene, tracer, surface: SurfacePoints, radiance: 
     camera = scene.camera
     sample_stratum = stratum_of(triangle, strata)
     coverage = pixel_coverage(scene, tracer, pixels, drawn, sample_stratum, strata, settings, pixel_global)
-    stats["aa_coverage_rays"] = coverage.rays
+    stats["aa_coverage_rays"] = stats.get("aa_coverage_rays", 0) + coverage.rays
     lattice = lattice_pixels(pixels, camera.window_shape, settings.filter_reach)
+    lattice_points = centres(lattice)
     xs, ys = window_pixels(camera)
-    centres = np.stack([xs[lattice], ys[lattice]], axis=1) + 0.5
+    lattice_position = np.stack([xs[lattice], ys[lattice]], axis=1) + 0.5
     owner = np.concatenate([np.repeat(np.arange(len(pixels)), drawn), np.full(len(lattice), -1)])
-    return pool_samples(np.concatenate([rgba, sample_rgba(radiance[lattice], surface.take(lattice), scene, settings)]),
-                        np.concatenate([position, centres]), owner, pixels, drawn, camera.window, settings,
-                        np.concatenate([sample_stratum, stratum_of(surface.index_triangle[lattice], strata)]),
+    return pool_samples(np.concatenate([rgba, sample_rgba(radiance[lattice], lattice_points, scene, settings)]),
+                        np.concatenate([position, lattice_position]), owner, pixels, drawn, camera.window, settings,
+                        np.concatenate([sample_stratum, stratum_of(lattice_points.index_triangle, strata)]),
                         coverage, lattice_density=1.0)
 
 
-def _compose(scene: Scene, frames, surface: SurfacePoints, radiance: np.ndarray, blockers: BlockerMap | None,
-             settings: Settings, shape: tuple[int, int], resolved=None) -> RenderOutput:
-    """The passes of the window; ``resolved`` = (pixels, (P, 4) RGBA, (P,) samples) replaces anti-aliased
-    pixels."""
-    height, width = shape
-    n_pixels = height * width
-    hit = surface.hit
-    combined = sample_rgba(radiance, surface, scene, settings).astype(np.float32)
-    sample_count = np.ones(n_pixels, np.int32)
-    if resolved is not None:
-        combined[resolved[0]] = resolved[1]
-        sample_count[resolved[0]] = resolved[2]
-    depth = np.full(n_pixels, BACKGROUND_DEPTH, np.float32)
-    depth[hit] = planar_depth(scene.camera, surface.position[hit])
-    normal = np.zeros((n_pixels, 3), np.float32)
-    normal[hit] = surface.shading_normal[hit]
-    n_lights = scene.light_count
-    if blockers is not None:
-        count = blockers.count_per_pixel(n_pixels)
-        umbra = blockers.umbra
-        if umbra.shape[1] != n_lights:  # virtual lights (a lamp's three planes) fold into their lamp
-            folded = np.zeros((n_pixels, n_lights), bool)
-            for light, target in enumerate(frames.scene_light):  # frames: a handful
-                folded[:, target] |= umbra[:, light]
-            umbra = folded
-    else:
-        count = np.zeros(n_pixels, np.int32)
-        umbra = np.zeros((n_pixels, n_lights), bool)
-    return RenderOutput(combined.reshape(height, width, 4), count.reshape(height, width),
-                        umbra.reshape(height, width, n_lights), depth.reshape(height, width),
-                        normal.reshape(height, width, 3), sample_count.reshape(height, width))
-
-
-def _warn_clamped_caps(surface: SurfacePoints, frames, progress: Progress) -> None:
-    """One warning naming the point and spot lights that some visible point lies too close to (``facing``'s
+def _clamped_caps(surface: SurfacePoints, frames) -> set[int]:
+    """The point and spot lights (scene indices) that some visible point lies too close to (``facing``'s
     MAX_HALF_ANGLE: it sees less of the lamp than Cycles there)."""
     points = surface.position[surface.hit]
     lamps = np.flatnonzero((frames.kind >= 0) & (frames.kind != FACING_HULL))
-    close = sorted({int(frames.source[light]) for light in lamps  # a handful
-                    if too_close(frames, light, points).any()})
+    return {int(frames.source[light]) for light in lamps if too_close(frames, light, points).any()}  # a handful
+
+
+def _warn_clamped_caps(close: set[int], progress: Progress) -> None:
+    """One warning naming the lamps of ``_clamped_caps``."""
     if close:
         progress.warn("surfaces closer to a point or spot light than 1.7 times its radius get less of its light "
-                      f"than in Cycles (point/spot/sun light {', '.join(str(i) for i in close)})")
+                      f"than in Cycles (point/spot/sun light {', '.join(str(i) for i in sorted(close))})")
 
 
 def _emitters_as_triangles_where_needed(scene: Scene, settings: Settings, progress: Progress) -> Scene:
@@ -660,12 +894,16 @@ def _emitters_as_triangles_where_needed(scene: Scene, settings: Settings, progre
     return hulls_as_triangles(scene, crowded)
 
 
-def _warn_near_hulls(surface: SurfacePoints, frames, progress: Progress) -> None:
-    """One warning naming the mesh emitters (hulls) that some visible point gets none of the light of
-    (``emitters.near_receivers``: an outline with more vertices than budgeted, or a point inside the box of
-    a hull's planes whose inner lights fail)."""
+def _near_hull_misses(surface: SurfacePoints, frames) -> dict[int, int]:
+    """Mesh emitter (hull) -> visible points that get none of its light (``emitters.near_receivers``: an
+    outline with more vertices than budgeted, or a point inside the box of a hull's planes whose inner
+    lights fail)."""
     hit = surface.hit
-    missed = near_receivers(frames, surface.position[hit], surface.index_triangle[hit], frames.part_of)
+    return near_receivers(frames, surface.position[hit], surface.index_triangle[hit], frames.part_of)
+
+
+def _warn_near_hulls(missed: dict[int, int], progress: Progress) -> None:
+    """One warning naming the emitters of ``_near_hull_misses`` and their pixels."""
     if missed:
         progress.warn("surfaces next to a mesh emitter (seeing more of its outline than budgeted) get none of its "
                       "light "
