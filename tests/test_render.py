@@ -1,5 +1,6 @@
 """Whole renders of scenes whose answer is known, lazy blocker maps against the reference, bad input."""
 
+import re
 import subprocess
 import sys
 import threading
@@ -15,7 +16,7 @@ from lazyvis_addon.core.blockers import BlockerPolygons
 from lazyvis_addon.core.demo_scenes import plane_under_light, quad_triangles
 from lazyvis_addon.core.geometry import light_frames, projected_solid_angle
 from lazyvis_addon.core.illumination import analytic, outgoing_radiance, visible_pieces
-from lazyvis_addon.core.render import _primary, band_rows_for
+from lazyvis_addon.core.render import FRAME_PIXEL_BYTES, MIN_WORKING_MB, _primary, band_rows_for, working_budget_mb
 from lazyvis_addon.core.settings import VISIBILITY_METHODS
 from lazyvis_addon.core.surface import scene_extent
 from lazyvis_addon.core.trace import RayTracer
@@ -211,15 +212,17 @@ def test_window_renders_the_same_pixels_as_the_full_frame(boxes_scene):
 PASSES = ("combined", "depth", "normal", "sample_count", "blocker_count", "umbra")
 
 
-@pytest.mark.parametrize("budget_mb", [8.0, 12.0])
-def test_bands_of_rows_render_the_same_pixels_as_one_band(budget_mb):
+@pytest.mark.parametrize("working_mb", [8.0, 12.0])
+def test_bands_of_rows_render_the_same_pixels_as_one_band(working_mb):
     """A smaller memory budget shades the frame in more bands of rows: the image and every pass stay the
     same bit for bit at the default settings (anti-aliasing, its coverage rays and pooling across the
     bands' borders included)."""
     scene = demo_scenes.floating_boxes(resolution=96, n_boxes=16)
+    budget_mb = working_mb + 96 * 96 * FRAME_PIXEL_BYTES / 2 ** 20  # the frame's own arrays are paid first
     whole = render(scene, Settings(threads=2))
     banded = render(scene, Settings(threads=2, memory_budget_mb=budget_mb))
-    assert whole.stats["bands"] == 1 and banded.stats["bands"] == -(-96 // band_rows_for(budget_mb, 96)) >= 2
+    assert banded.stats["working_budget_mb"] == pytest.approx(working_mb)
+    assert whole.stats["bands"] == 1 and banded.stats["bands"] == -(-96 // band_rows_for(working_mb, 96)) >= 2
     assert whole.stats["aa_pixels"] > 100  # the bands' borders cross anti-aliased edges
     for name in PASSES:
         np.testing.assert_array_equal(getattr(banded, name), getattr(whole, name), err_msg=name)
@@ -303,6 +306,24 @@ def test_non_convex_light_and_bad_settings_are_refused():
 def test_too_small_memory_budget_fails_clearly(boxes_scene, visibility):
     with pytest.raises(MemoryError, match="memory budget"):
         render(boxes_scene, Settings(memory_budget_mb=0.001, visibility=visibility))
+
+
+def test_the_frame_is_paid_from_the_budget_first():
+    """A budget that holds the batches but not a 4K frame's own passes fails before any work, naming the
+    least budget that renders; that least budget renders (a band a row or two high)."""
+    scene = demo_scenes.floating_boxes(resolution=64, n_boxes=4)
+    least = working_budget_mb(1e9, 2160, 3840)
+    with pytest.raises(MemoryError, match=r"too small for a 3840 x 2160 frame \(at least (\d+) MB") as raised:
+        working_budget_mb(600.0, 2160, 3840)
+    needed = float(re.search(r"at least (\d+) MB", str(raised.value)).group(1))
+    assert 1e9 - least + MIN_WORKING_MB <= needed < 1e9 - least + MIN_WORKING_MB + 1
+    assert working_budget_mb(needed, 2160, 3840) >= MIN_WORKING_MB
+    # The smallest budget a 64 x 64 frame takes renders it as the default does; a little less fails.
+    smallest = 64 * 64 * FRAME_PIXEL_BYTES / 2 ** 20 + MIN_WORKING_MB
+    tight = render(scene, Settings(threads=2, memory_budget_mb=smallest))
+    np.testing.assert_array_equal(tight.combined, render(scene, Settings(threads=2)).combined)
+    with pytest.raises(MemoryError, match="64 x 64 frame"):
+        render(scene, Settings(memory_budget_mb=smallest - 1.0))
 
 
 class CancelAfter(Progress):

@@ -40,7 +40,7 @@ from . import rng
 from .adaptive import close_holes, refine_mask
 from .blocker_map import BlockerMap, test_pairs
 from .blockers import triangle_components
-from .camera import camera_rays, clip_distance, window_pixels
+from .camera import camera_rays, clip_distance, pixel_coordinates
 from .film import filter_offsets, offset_density
 from .parallel import thread_count
 from .scene import Scene
@@ -229,14 +229,14 @@ def filter_rays(camera, pixels: np.ndarray, counts, first, settings: Settings, p
     """
     counts = np.broadcast_to(np.asarray(counts, dtype=np.int64), (len(pixels),))
     first = np.broadcast_to(np.asarray(first, dtype=np.int64), (len(pixels),))
-    xs, ys = window_pixels(camera)
     parent = np.repeat(pixels, counts)
+    xs, ys = pixel_coordinates(camera, parent)
     sample = np.repeat(first, counts) + np.arange(len(parent)) - np.repeat(np.cumsum(counts) - counts, counts)
     # Sobol points: strata of every shape at any power-of-two count, and a later batch continues them.
     u = rng.sobol_2d(settings.seed, settings.frame, rng.STREAM_FILM, pixel_global[parent], sample)
     offset = filter_offsets(u, settings.effective_filter_width, settings.filter_type)
-    origins, directions = camera_rays(camera, xs[parent], ys[parent], offset)
-    position = np.stack([xs[parent], ys[parent]], axis=1) + offset
+    origins, directions = camera_rays(camera, xs, ys, offset)
+    position = np.stack([xs, ys], axis=1) + offset
     return origins, directions, position, parent, sample
 
 

@@ -21,6 +21,14 @@ def window_pixels(camera: Camera, window=None) -> tuple[np.ndarray, np.ndarray]:
     return xs.reshape(-1).astype(np.int64), ys.reshape(-1).astype(np.int64)
 
 
+def pixel_coordinates(camera: Camera, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Full-frame coordinates x, y (P,) int64 of window-local pixels (P,) (row-major indices into the
+    camera's window): ``window_pixels``' entries at ``pixels``, without the whole window's grid."""
+    x0, y0, x1, _ = camera.window
+    rows, columns = np.divmod(np.asarray(pixels, dtype=np.int64), x1 - x0)
+    return columns + x0, rows + y0
+
+
 def camera_rays(camera: Camera, x: np.ndarray, y: np.ndarray, offset: np.ndarray | None = None
                 ) -> tuple[np.ndarray, np.ndarray]:
     """World-space rays through points of full-frame pixels.

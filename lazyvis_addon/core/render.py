@@ -19,7 +19,7 @@ from .antialias import (PILOT_SAMPLES, allocate_samples, centre_suffices, covers
                         surface_strata)
 from .blockers import BlockerPolygons
 from .blocker_map import BlockerMap, build_blocker_map, flood_fill, reference_blocker_map
-from .camera import camera_rays, clip_distance, planar_depth, window_pixels
+from .camera import camera_rays, clip_distance, pixel_coordinates, planar_depth, window_pixels
 from .emitters import (FACING_HULL, crowded_hulls, hull_faces_in_scene, hull_tables, hulls_as_triangles,
                        near_receivers, nearby_geometry)
 from .facing import too_close
@@ -87,6 +87,10 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
     height, width = camera.window_shape
     n_pixels = height * width
     stats: dict = {"triangles": len(scene.triangles), "lights": scene.light_count, "pixels": n_pixels}
+    # The frame's own arrays are paid from the budget first; the batches and bands work within the rest.
+    working_mb = working_budget_mb(settings.memory_budget_mb, height, width)
+    stats["working_budget_mb"] = working_mb
+    settings = settings.replace(memory_budget_mb=working_mb)
     if scene.light_count == 0:
         progress.warn("the scene has no lights: surfaces render black")
 
@@ -116,8 +120,8 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
     if len(scene.seen):
         # Lights the camera sees add their radiance over whatever lies behind them (Cycles: a light is no
         # occluder for camera rays and adds no alpha).
-        drawn, outlined = draw_seen_lights(scene.seen, camera, tracer, settings, pixel_global, progress)
-        output.combined[..., :3] += drawn.reshape(height, width, 3).astype(np.float32)
+        reached, drawn, outlined = draw_seen_lights(scene.seen, camera, tracer, settings, pixel_global, progress)
+        output.combined.reshape(-1, 4)[reached, :3] += drawn.astype(np.float32)
         counts = output.sample_count.reshape(-1)
         counts[outlined] = np.maximum(counts[outlined], OUTLINE_SAMPLES)
     stats["rays_cast"] = tracer.n_rays_cast
@@ -132,8 +136,8 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
 @dataclass
 class CentreGrid:
     """What anti-aliasing reads of every pixel centre of the window (N = H * W, row-major): the triangle seen
-    (N,) int32 or int64 (-1: none), its shading normal (N, 3) and emitted radiance (N, 3) float64 (None:
-    none emits)."""
+    (N,) int32 or int64 (-1: none), its shading normal (N, 3) and emitted radiance (N, 3) float32 (float64
+    in the blocker-map path; emission None: none emits)."""
 
     index_triangle: np.ndarray
     shading_normal: np.ndarray
@@ -147,7 +151,7 @@ class ShadedFrame:
     Attributes
     ----------
     output : RenderOutput        every pass composed from the pixel centres.
-    radiance : (N, 3) float64    reflected radiance at the centres.
+    radiance : (N, 3) float32    reflected radiance at the centres (float64 in the blocker-map path).
     grid : CentreGrid            the centres' triangles, normals and emission.
     centres : callable           window-local pixels (P,) int64 -> their SurfacePoints (the ones pass 2
                                  shaded: kept, or traced again, which gives the same points).
@@ -164,6 +168,28 @@ class ShadedFrame:
     polygons: BlockerPolygons | None = None
     verify: bool = False
     edges: MeshEdges | None = None
+
+
+# Bytes per pixel of the frame's own arrays, which live through the whole render: the centres' radiance,
+# triangle and normal that anti-aliasing reads (40), the passes (40 to 50), the pixels' full-frame indices
+# (8); with a margin for the passes' final reshapes and a light's umbra flags.
+FRAME_PIXEL_BYTES = 112
+# The least working memory a render takes besides its frame: a band of a row or two and pass 2's smallest
+# batches of a few lights (a scene of many lights may need more; pass 2 then names what it needs).
+MIN_WORKING_MB = 8.0
+
+
+def working_budget_mb(memory_budget_mb: float, height: int, width: int) -> float:
+    """The memory budget (MB) left for bands and batches once a ``width`` x ``height`` frame's own arrays
+    (FRAME_PIXEL_BYTES a pixel) are paid. Raises MemoryError, naming the least budget that renders, when
+    less than MIN_WORKING_MB would be left."""
+    frame_mb = height * width * FRAME_PIXEL_BYTES / 2 ** 20
+    working = memory_budget_mb - frame_mb
+    if working < MIN_WORKING_MB:
+        raise MemoryError(f"memory budget of {memory_budget_mb:g} MB is too small for a {width} x {height} "
+                          f"frame (at least {np.ceil(frame_mb + MIN_WORKING_MB):.0f} MB: {frame_mb:.0f} MB for "
+                          f"its passes, {MIN_WORKING_MB:g} MB to work in); raise it")
+    return working
 
 
 # Bytes per pixel of a band's pixel centres and their shading (``SurfacePoints``, about 230, the band's
@@ -204,9 +230,10 @@ def _silhouette_frame(scene: Scene, tracer, extent: float, frames, settings: Set
     rows_per_band = band_rows_for(settings.memory_budget_mb, width)
     # The frame's own arrays, about 100 bytes a pixel: what anti-aliasing reads of the centres (emission
     # only once a band emits: most scenes' surfaces do not) and the composed passes.
-    radiance = np.zeros((n_pixels, 3))
+    # float32: anti-aliasing reads them for contrasts and normal steps, and pools them into float32 RGBA.
+    radiance = np.zeros((n_pixels, 3), np.float32)
     grid = CentreGrid(np.full(n_pixels, -1, np.int32 if len(scene.triangles) < 2 ** 31 else np.int64),
-                      np.zeros((n_pixels, 3)), None)
+                      np.zeros((n_pixels, 3), np.float32), None)
     combined = np.zeros((n_pixels, 4), np.float32)
     depth = np.full(n_pixels, BACKGROUND_DEPTH, np.float32)
     normal = np.zeros((n_pixels, 3), np.float32)
@@ -230,7 +257,7 @@ def _silhouette_frame(scene: Scene, tracer, extent: float, frames, settings: Set
         grid.index_triangle[rows] = surface.index_triangle
         grid.shading_normal[rows] = surface.shading_normal
         if grid.emission is None and surface.emission.any():
-            grid.emission = np.zeros((n_pixels, 3))
+            grid.emission = np.zeros((n_pixels, 3), np.float32)
         if grid.emission is not None:
             grid.emission[rows] = surface.emission
         combined[rows], depth[rows], normal[rows] = _compose_centres(scene, surface, band, settings)
@@ -259,8 +286,7 @@ def _silhouette_frame(scene: Scene, tracer, extent: float, frames, settings: Set
     def centres(pixels: np.ndarray) -> SurfacePoints:
         if kept is not None:
             return kept.take(pixels)
-        xs, ys = window_pixels(camera)
-        return _surface_points(scene, tracer, extent, settings, xs[pixels], ys[pixels])
+        return _surface_points(scene, tracer, extent, settings, *pixel_coordinates(camera, pixels))
     return ShadedFrame(output, radiance, grid, centres, rows_per_band, edges=edges)
 
 
@@ -853,8 +879,7 @@ def _pool_with_coverage(scene: Scene, tracer, centres: Callable, radiance: np.nd
     stats["aa_coverage_rays"] = stats.get("aa_coverage_rays", 0) + coverage.rays
     lattice = lattice_pixels(pixels, camera.window_shape, settings.filter_reach)
     lattice_points = centres(lattice)
-    xs, ys = window_pixels(camera)
-    lattice_position = np.stack([xs[lattice], ys[lattice]], axis=1) + 0.5
+    lattice_position = np.stack(pixel_coordinates(camera, lattice), axis=1) + 0.5
     owner = np.concatenate([np.repeat(np.arange(len(pixels)), drawn), np.full(len(lattice), -1)])
     return pool_samples(np.concatenate([rgba, sample_rgba(radiance[lattice], lattice_points, scene, settings)]),
                         np.concatenate([position, lattice_position]), owner, pixels, drawn, camera.window, settings,

@@ -182,36 +182,47 @@ def _pixel_means(seen, camera, tracer, xs, ys, offsets, batch: int, progress=Non
 
 
 def draw_seen_lights(seen: SeenLights, camera, tracer, settings: Settings, pixel_global: np.ndarray,
-                     progress=None) -> tuple[np.ndarray, np.ndarray]:
-    """What the camera's window sees of the lights, through the pixel filter: (H * W, 3) float64 radiance to
-    add to the image (row-major over the window; ``pixel_global`` (H * W,) int64 their full-frame indices),
-    and the pixels (K,) int64 that took OUTLINE_SAMPLES samples.
+                     progress=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What the camera's window sees of the lights, through the pixel filter: the window's pixels (K,) int64
+    (row-major, window-local) a light's image may reach, the radiance (K, 3) float64 to add to them
+    (``pixel_global`` (H * W,) int64 the window's full-frame indices), and the pixels (E,) int64 that took
+    OUTLINE_SAMPLES samples.
 
     Every pixel whose filter reaches a light's screen box takes SEEN_SAMPLES^2 stratified samples; those whose
     samples see different lights, or within the filter's reach of a pixel whose samples see other lights
     than its own (an outline the coarse samples straddle or that only the filter's tails reach), take
-    OUTLINE_SAMPLES of the film's scrambled Sobol points instead, as anti-aliasing's edge samples do."""
+    OUTLINE_SAMPLES of the film's scrambled Sobol points instead, as anti-aliasing's edge samples do. The
+    work runs over the rectangle of pixels the boxes reach, not the whole window."""
     filter_width, filter_type = settings.effective_filter_width, settings.filter_type
     batch = settings.pixel_batch * 4
-    xs, ys = window_pixels(camera)
-    drawn = np.zeros((len(xs), 3))
+    nothing = np.zeros(0, np.int64)
     if len(seen) == 0:
-        return drawn, np.zeros(0, np.int64)
+        return nothing, np.zeros((0, 3)), nothing
     extent = half_extent(filter_width, filter_type)
     k = int(np.ceil(extent + 0.5))  # the filter's reach in pixels
+    reach = 0.5 + extent + 1e-6  # the samples' reach about the pixel centre
+    boxes = screen_boxes(seen, camera)
     # The coarse samples run over the window grown by that reach (within the frame), so that a pixel at
-    # the window's edge is refined exactly when it is in the full frame: a border renders the frame's pixels.
+    # the window's edge is refined exactly when it is in the full frame: a border renders the frame's
+    # pixels; and only over the part of it within k pixels of a pixel a box reaches (the outline test
+    # looks k pixels around each), outside of which every pixel's coarse samples would see nothing.
     x0, y0, x1, y1 = camera.window
     grown = (max(x0 - k, 0), max(y0 - k, 0), min(x1 + k, camera.width), min(y1 + k, camera.height))
+    with np.errstate(invalid="ignore"):
+        low = np.floor(np.clip(boxes[:, :2].min(axis=0) - reach - 0.5, -2.0 ** 40, 2.0 ** 40))
+        high = np.ceil(np.clip(boxes[:, 2:].max(axis=0) + reach - 0.5, -2.0 ** 40, 2.0 ** 40))
+    grown = (max(grown[0], int(low[0]) - k), max(grown[1], int(low[1]) - k),
+             min(grown[2], int(high[0]) + 1 + k), min(grown[3], int(high[1]) + 1 + k))
+    if grown[2] <= grown[0] or grown[3] <= grown[1]:
+        return nothing, np.zeros((0, 3)), nothing
     gxs, gys = window_pixels(camera, grown)
     g_height, g_width = grown[3] - grown[1], grown[2] - grown[0]
-    boxes = screen_boxes(seen, camera)
-    reach = 0.5 + extent + 1e-6  # the samples' reach about the pixel centre
     centre_x, centre_y = gxs + 0.5, gys + 0.5
     near = np.zeros(len(gxs), bool)
     for bx0, by0, bx1, by1 in boxes:  # a handful
         near |= (centre_x + reach >= bx0) & (centre_x - reach <= bx1) & (centre_y + reach >= by0) & \
             (centre_y - reach <= by1)
+    del centre_x, centre_y
     pixels = np.flatnonzero(near)
     if progress is not None:
         progress.begin_stage("Drawing lights", len(pixels))
@@ -227,18 +238,25 @@ def draw_seen_lights(seen: SeenLights, camera, tracer, settings: Settings, pixel
         for dx in range(-k, k + 1):
             rows, cols = slice(k + dy, k + dy + g_height), slice(k + dx, k + dx + g_width)
             refine |= (padded_some[rows, cols] != some_grid) | (padded_every[rows, cols] != every_grid)
-    # Back to the window: its rows and columns of the grown grid.
-    inner = ((np.arange(y0, y1) - grown[1])[:, None] * g_width + (np.arange(x0, x1) - grown[0])[None, :]).reshape(-1)
+    # Back to the window: the part of the grown rectangle inside it.
+    wx0, wy0, wx1, wy1 = max(x0, grown[0]), max(y0, grown[1]), min(x1, grown[2]), min(y1, grown[3])
+    if wx1 <= wx0 or wy1 <= wy0:
+        return nothing, np.zeros((0, 3)), nothing
+    ys_in, xs_in = np.arange(wy0, wy1), np.arange(wx0, wx1)
+    inner = ((ys_in - grown[1])[:, None] * g_width + (xs_in - grown[0])[None, :]).reshape(-1)
+    drawn_pixels = ((ys_in - y0)[:, None] * (x1 - x0) + (xs_in - x0)[None, :]).reshape(-1)
     coarse = np.zeros((len(gxs), 3))
     coarse[pixels] = means
-    drawn[:] = coarse[inner]
-    edge = np.flatnonzero(refine.reshape(-1)[inner] & near[inner])
+    drawn = coarse[inner]
+    outline = np.flatnonzero(refine.reshape(-1)[inner] & near[inner])
+    edge = drawn_pixels[outline]
     index = np.tile(np.arange(OUTLINE_SAMPLES), len(edge))
     u = rng.sobol_2d(settings.seed, settings.frame, rng.STREAM_SEEN_LIGHTS, np.repeat(pixel_global[edge],
                                                                                      OUTLINE_SAMPLES), index)
     fine = filter_offsets(u, filter_width, filter_type).reshape(len(edge), OUTLINE_SAMPLES, 2)
-    drawn[edge] = _pixel_means(seen, camera, tracer, xs[edge], ys[edge], fine, batch, progress)[0]
+    drawn[outline] = _pixel_means(seen, camera, tracer, gxs[inner[outline]], gys[inner[outline]], fine, batch,
+                                  progress)[0]
     if progress is not None:
         progress.advance(len(pixels))
         progress.end_stage()
-    return drawn, edge
+    return drawn_pixels, drawn, edge
