@@ -230,6 +230,19 @@ def test_bands_of_rows_render_the_same_pixels_as_one_band(working_mb):
     assert banded.stats["aa_settled_pixels"] == whole.stats["aa_settled_pixels"]
 
 
+def test_stage_seconds_account_for_the_render():
+    """Every stage is timed once, each band's share added to its stage, and anti-aliasing's own pass 2 counted
+    as anti-aliasing (it once began a stage of its own and the rest of anti-aliasing went untimed): the
+    stages add up to the render's time, less only the bookkeeping between them."""
+    scene = demo_scenes.floating_boxes(resolution=120, n_boxes=8)
+    budget_mb = 2 * MIN_WORKING_MB + 120 * 120 * FRAME_PIXEL_BYTES / 2 ** 20  # a few bands
+    output = render(scene, Settings(threads=2, memory_budget_mb=budget_mb))
+    stages = output.stats["stage_seconds"]
+    assert output.stats["bands"] > 1 and output.stats["aa_pixels"] > 0
+    assert {"Camera rays", "Illumination", "Composing passes", "Anti-aliasing"} <= set(stages)
+    assert 0.9 * output.stats["seconds"] <= sum(stages.values()) <= output.stats["seconds"]
+
+
 def test_same_seed_same_image_other_seed_other_noise(boxes_scene):
     a = render(boxes_scene, Settings(integrator="reduced_mc", mc_samples=2, seed=1)).combined
     b = render(boxes_scene, Settings(integrator="reduced_mc", mc_samples=2, seed=1)).combined

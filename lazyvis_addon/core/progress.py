@@ -7,6 +7,7 @@ drive ``RenderEngine.update_stats`` / ``update_progress`` / ``test_break``; the 
 
 from __future__ import annotations
 
+import threading
 import time
 
 
@@ -50,6 +51,12 @@ class Progress:
             self.stage_seconds[self._stage] = self.stage_seconds.get(self._stage, 0.0) + elapsed
             self._stage = None
 
+    def nested(self) -> "Progress":
+        """A progress for work done as part of the current stage (anti-aliasing shading its samples by pass
+        2): the stages it begins are not stages of their own (their time stays the current stage's), while
+        cancel and warnings still reach this one."""
+        return _Nested(self)
+
     def warn(self, message: str) -> None:
         """A user-facing warning (dropped degenerate geometry, unsupported input)."""
         self.warnings.append(message)
@@ -71,3 +78,33 @@ class Progress:
 
     def on_warning(self, message: str) -> None:
         pass
+
+
+class _Nested(Progress):
+    """``Progress.nested``: stages and advances are the outer stage's; cancel and warnings go to the outer,
+    cancel only from the thread that made this one (front ends ask Blender, which wants its own thread;
+    work on the pool is cancelled between its batches by the calling thread)."""
+
+    def __init__(self, outer: Progress) -> None:
+        super().__init__()
+        self.outer = outer
+        self._thread = threading.get_ident()
+
+    def begin_stage(self, name: str, total: int = 0, done: int = 0) -> None:
+        self.check_cancel()
+
+    def advance(self, units: int = 1) -> None:
+        self.check_cancel()
+
+    def end_stage(self) -> None:
+        pass
+
+    def warn(self, message: str) -> None:
+        self.outer.warn(message)
+
+    def check_cancel(self) -> None:
+        if threading.get_ident() == self._thread:
+            self.outer.check_cancel()
+
+    def nested(self) -> Progress:
+        return self

@@ -202,6 +202,13 @@ BAND_BUDGET_SHARE = 0.25
 AA_SAMPLES_PER_MB = (1 << 20) * BAND_BUDGET_SHARE / BAND_PIXEL_BYTES
 
 
+def _batch_in_flight(settings: Settings, threads: int) -> int:
+    """Pixels per batch of camera rays or composing on the thread pool: four pass-2 batches at most, and
+    the batches in flight (two per thread) within a band's share of the budget, as the band itself."""
+    most = settings.memory_budget_mb * (1 << 20) * BAND_BUDGET_SHARE // (BAND_PIXEL_BYTES * 2 * threads)
+    return max(MIN_SHARED_BATCH, min(settings.pixel_batch * 4, int(most)))
+
+
 def band_rows_for(memory_budget_mb: float, width: int) -> int:
     """Rows of the window per band: the band's centres within BAND_BUDGET_SHARE of the budget (at least
     one row: a budget that small renders slowly, it does not fail)."""
@@ -253,6 +260,7 @@ def _silhouette_frame(scene: Scene, tracer, extent: float, frames, settings: Set
                 near_hulls[hull] = near_hulls.get(hull, 0) + count
         band, band_stats, _ = _illuminate(surface, frames, None, tracer, None, settings, pixel_global[rows], progress,
                                           scene.materials, False, edges, stage=(n_pixels, rows.start))
+        progress.begin_stage("Composing passes", n_pixels, rows.start)
         radiance[rows] = band
         grid.index_triangle[rows] = surface.index_triangle
         grid.shading_normal[rows] = surface.shading_normal
@@ -260,7 +268,7 @@ def _silhouette_frame(scene: Scene, tracer, extent: float, frames, settings: Set
             grid.emission = np.zeros((n_pixels, 3), np.float32)
         if grid.emission is not None:
             grid.emission[rows] = surface.emission
-        combined[rows], depth[rows], normal[rows] = _compose_centres(scene, surface, band, settings)
+        _compose_in_batches(scene, surface, band, settings, (combined[rows], depth[rows], normal[rows]), progress)
         arcs_per_pixel[rows] = np.minimum(band_stats.pop("arcs_per_pixel"), np.iinfo(np.int32).max)
         umbra[rows] = band_stats.pop("umbra")
         for name, value in band_stats.items():
@@ -382,9 +390,10 @@ def _antialias(scene: Scene, tracer, extent: float, frames, settings: Settings, 
     None where no pixel needs it.
 
     Which pixels and how many samples each is decided over the whole window (from the centres' radiance).
-    The samples are then shaded and pooled band after band of rows, each band with the pixels within
-    POOL_RING rows above and below it, whose samples its own pixels' filters reach (theirs are shaded
-    again with the next band: a pixel's samples are the same whichever band draws them)."""
+    The samples are then shaded and pooled in bands of rows, side by side on the threads, each band with
+    the pixels within a ring of rows above and below it, whose samples its own pixels' filters reach
+    (theirs are shaded again with the next band: a pixel's samples are the same whichever band draws
+    them)."""
     camera = scene.camera
     height, width = camera.window_shape
     progress.begin_stage("Anti-aliasing")
@@ -398,39 +407,65 @@ def _antialias(scene: Scene, tracer, extent: float, frames, settings: Settings, 
     stats["aa_centre_pixels"] = int(alone.sum())
     stats["aa_pixels"] = len(pixels)
     if len(pixels) == 0:
+        progress.end_stage()
         return None
-    shading = (scene, tracer, extent, settings, pixel_global, frames, frame.polygons, progress, stats,
-               frame.lazy_state, frame.verify, frame.edges)
     covered = settings.aa_coverage_rays > 0
     # With coverage the pixel's centre, shaded already, is one of its samples.
     wanted = counts - 1 if covered else counts
     strata = surface_strata(scene)  # the surfaces coverage tells apart: once per render
     ring = int(np.ceil(2.0 * settings.filter_reach)) + 1
     row = pixels // width
-    pooled = np.zeros((len(pixels), 4))
-    final = np.zeros(len(pixels), np.int64)
-    stats["aa_samples_shaded"] = stats["aa_settled_pixels"] = stats["aa_coverage_rays"] = 0
-    for first_row, last_row in _sample_bands(row, wanted, height, frame.band_rows,
-                                             settings.memory_budget_mb * AA_SAMPLES_PER_MB):
+    # Bands of rows shaded side by side on the threads (the numpy between pass 2's kernels, camera and
+    # coverage rays runs on one core otherwise): at least two per thread, each with its thread's share
+    # of the budget's samples.
+    threads = thread_count(settings.threads)
+    most_rows = min(frame.band_rows, max(AA_MIN_BAND_ROWS, -(-height // (2 * threads))))
+    bands = _sample_bands(row, wanted, height, most_rows, settings.memory_budget_mb * AA_SAMPLES_PER_MB / threads)
+    counters = ("aa_settled_pixels", "aa_coverage_rays", "aa_verified_samples", "verify_rays")
+    nested = progress.nested()  # made here: it forwards cancel checks from this thread only
+
+    def shade_band(rows: tuple[int, int]):
+        """The band's own pixels (K,) (rows into ``pixels``), their filtered RGBA (K, 4), samples drawn (K,)
+        and the band's counters."""
+        first_row, last_row = rows
         chosen = np.flatnonzero((row >= first_row - ring) & (row < last_row + ring))
         own = (row[chosen] >= first_row) & (row[chosen] < last_row)
+        counted = dict.fromkeys(counters, 0)  # the band's own: bands run on several threads
         if not own.any():
-            continue
+            return chosen[own], np.zeros((0, 4)), np.zeros(0, np.int64), counted
+        # The samples' pass 2 runs as part of this stage: its time stays anti-aliasing's.
+        shading = (scene, tracer, extent, settings, pixel_global, frames, frame.polygons, nested, counted,
+                   frame.lazy_state, frame.verify, frame.edges)
         band = pixels[chosen]
         drawn, rgba, position, triangle = _shade_until_settled(band, wanted[chosen], contrast[chosen],
                                                                frame.centres(band), frame.radiance[band], strata,
                                                                shading, own)
         if covered:
             values = _pool_with_coverage(scene, tracer, frame.centres, frame.radiance, band, drawn, rgba, position,
-                                         triangle, strata, settings, pixel_global, stats)
+                                         triangle, strata, settings, pixel_global, counted)
         else:
             owner = np.repeat(np.arange(len(band)), drawn)
             values = pool_samples(rgba, position, owner, band, drawn, camera.window, settings)
-        pooled[chosen[own]] = values[own]
-        final[chosen[own]] = drawn[own]
-        stats["aa_samples_shaded"] += int(drawn[own].sum())
+        return chosen[own], values[own], drawn[own], counted
+
+    progress.begin_stage("Anti-aliasing", len(bands), 0)
+    pooled = np.zeros((len(pixels), 4))
+    final = np.zeros(len(pixels), np.int64)
+    stats["aa_samples_shaded"] = stats["aa_settled_pixels"] = stats["aa_coverage_rays"] = 0
+    for own, values, drawn, counted in map_batches(shade_band, bands, threads, progress):
+        pooled[own] = values
+        final[own] = drawn
+        stats["aa_samples_shaded"] += int(drawn.sum())
+        for name, value in counted.items():
+            if value or name in stats:
+                stats[name] = stats.get(name, 0) + value
     progress.end_stage()
     return pixels, pooled, final + 1 if covered else final
+
+
+# Fewest rows of a band of anti-aliasing samples where the budget allows more: its ring of re-shaded
+# rows (a few) stays a small part of it.
+AA_MIN_BAND_ROWS = 32
 
 
 # Rows around a band that its inner rows' marks depend on: a pair of neighbours marks both, and a pixel
@@ -478,6 +513,22 @@ def _sample_bands(row: np.ndarray, samples: np.ndarray, height: int, most_rows: 
         bands.append((first, min(first + rows, height)))
         first += rows
     return bands
+
+
+def _compose_in_batches(scene: Scene, surface: SurfacePoints, radiance: np.ndarray, settings: Settings,
+                        passes: tuple[np.ndarray, np.ndarray, np.ndarray], progress: Progress) -> None:
+    """``_compose_centres`` of a band's points into ``passes`` (views of the frame's RGBA, depth and normal
+    rows), in batches on the thread pool (textures are looked up here)."""
+    threads = thread_count(settings.threads)
+    step = _batch_in_flight(settings, threads)
+    starts = list(range(0, len(surface), step))
+
+    def compose(start: int) -> None:
+        rows = np.arange(start, min(start + step, len(surface)))
+        for target, values in zip(passes, _compose_centres(scene, surface.take(rows), radiance[rows], settings)):
+            target[rows] = values
+    map_batches(compose, starts, threads, progress,
+                [min(start + step, len(surface)) - start for start in starts])
 
 
 def _compose_centres(scene: Scene, surface: SurfacePoints, radiance: np.ndarray, settings: Settings):
@@ -543,20 +594,33 @@ def _surface_points(scene: Scene, tracer, extent: float, settings: Settings, xs:
     """What camera rays through the centres of full-frame pixels (xs, ys) (N,) int64 see, in batches (a
     pixel's point does not depend on the batch it is traced in)."""
     camera = scene.camera
-    frame = None  # the window's arrays, filled batch by batch (a list of parts and their concatenation
-    # held the frame twice: at 3840 x 2160 this stage peaked at 3.77 GB, 2.16 GB filled in place)
-    for start in range(0, max(len(xs), 1), settings.pixel_batch * 4):  # batches of pixels
-        rows = slice(start, start + settings.pixel_batch * 4)
-        origins, directions = camera_rays(camera, xs[rows], ys[rows])
+    threads = thread_count(settings.threads)
+    step = _batch_in_flight(settings, threads)
+    starts = list(range(0, max(len(xs), 1), step))
+
+    def trace(start: int) -> SurfacePoints:
+        origins, directions = camera_rays(camera, xs[start:start + step], ys[start:start + step])
         hits = tracer.intersect(origins, directions, clip_distance(camera, directions))
-        part = shade_hits(scene, origins, directions, hits.index_triangle, hits.u, hits.v, extent)
-        if frame is None:
-            frame = {f.name: np.empty((len(xs), *getattr(part, f.name).shape[1:]), getattr(part, f.name).dtype)
-                     for f in fields(SurfacePoints)}
+        return shade_hits(scene, origins, directions, hits.index_triangle, hits.u, hits.v, extent)
+
+    # The window's arrays, filled batch by batch (a list of parts and their concatenation held the frame
+    # twice: at 3840 x 2160 this stage peaked at 3.77 GB, 2.16 GB filled in place); the first batch tells
+    # their types, the others are traced and shaded on the thread pool (shading is numpy: textures, normals).
+    first = trace(0)
+    frame = {f.name: np.empty((len(xs), *getattr(first, f.name).shape[1:]), getattr(first, f.name).dtype)
+             for f in fields(SurfacePoints)}
+
+    def fill(start: int, part: SurfacePoints | None = None) -> None:
+        part = trace(start) if part is None else part
         for name, array in frame.items():
-            array[rows] = getattr(part, name)
-        if progress is not None:
-            progress.advance(len(origins))
+            array[start:start + step] = getattr(part, name)
+
+    fill(0, first)
+    if progress is not None:
+        progress.advance(min(step, len(xs)))
+    del first
+    map_batches(fill, starts[1:], threads, progress,
+                [min(start + step, len(xs)) - start for start in starts[1:]])
     return SurfacePoints(**frame)
 
 
