@@ -42,7 +42,7 @@ from .blocker_map import BlockerMap, test_pairs
 from .blockers import triangle_components
 from .camera import camera_rays, clip_distance, pixel_coordinates
 from .film import filter_offsets, offset_density
-from .parallel import thread_count
+from .parallel import map_batches, thread_count
 from .scene import Scene
 from .settings import Settings
 from .surface import scene_extent, shade_hits
@@ -422,13 +422,16 @@ def centre_suffices(scene: Scene, tracer, pixels: np.ndarray, centre_triangle: n
     textured = np.zeros(len(pixels), bool)
     if scene.materials.texture_index is not None and len(scene.material_index):
         textured = (material >= 0) & (scene.materials.texture_index[np.maximum(material, 0)] >= 0)
-    step = max(1, COVERAGE_BATCH // rays)
-    for lo in range(0, len(pixels), step):  # batches of pixels, a million rays each
+    threads = thread_count(settings.threads)
+    step = max(1, COVERAGE_BATCH // rays // threads)  # the batches in flight: a million rays in all
+
+    def test(lo: int) -> None:
         rows = slice(lo, lo + step)
         origins, directions, _, _, _ = filter_rays(scene.camera, pixels[rows], rays, 0, settings, pixel_global)
         seen = tracer.intersect(origins, directions, clip_distance(scene.camera, directions)).index_triangle \
             .reshape(-1, rays)
         out[rows] = (seen == centre_triangle[rows, None]).all(axis=1)
+    map_batches(test, range(0, len(pixels), step), threads)  # batches of pixels on the thread pool
     return out & (centre_triangle >= 0) & ~textured
 
 

@@ -423,6 +423,8 @@ def _antialias(scene: Scene, tracer, extent: float, frames, settings: Settings, 
     bands = _sample_bands(row, wanted, height, most_rows, settings.memory_budget_mb * AA_SAMPLES_PER_MB / threads)
     counters = ("aa_settled_pixels", "aa_coverage_rays", "aa_verified_samples", "verify_rays")
     nested = progress.nested()  # made here: it forwards cancel checks from this thread only
+    # Each band's pass 2 and camera rays run on the pool too: the bands in flight share the budget.
+    band_settings = settings.replace(memory_budget_mb=settings.memory_budget_mb / threads)
 
     def shade_band(rows: tuple[int, int]):
         """The band's own pixels (K,) (rows into ``pixels``), their filtered RGBA (K, 4), samples drawn (K,)
@@ -434,7 +436,7 @@ def _antialias(scene: Scene, tracer, extent: float, frames, settings: Settings, 
         if not own.any():
             return chosen[own], np.zeros((0, 4)), np.zeros(0, np.int64), counted
         # The samples' pass 2 runs as part of this stage: its time stays anti-aliasing's.
-        shading = (scene, tracer, extent, settings, pixel_global, frames, frame.polygons, nested, counted,
+        shading = (scene, tracer, extent, band_settings, pixel_global, frames, frame.polygons, nested, counted,
                    frame.lazy_state, frame.verify, frame.edges)
         band = pixels[chosen]
         drawn, rgba, position, triangle = _shade_until_settled(band, wanted[chosen], contrast[chosen],
@@ -474,8 +476,8 @@ MARK_RING = 2
 
 
 def _marked_pixels(scene: Scene, tracer, settings: Settings, frame: ShadedFrame) -> tuple[np.ndarray, np.ndarray]:
-    """``antialias.refine_pixels`` over the window, band after band of rows (each with MARK_RING rows of
-    its neighbours, and the whole window's radiance floor): the marked pixels (P,) int64, ascending, and
+    """``antialias.refine_pixels`` over the window in bands of rows on the threads (each with MARK_RING rows
+    of its neighbours, and the whole window's radiance floor): the marked pixels (P,) int64, ascending, and
     their contrast (P,), the same as the whole window's at once."""
     height, width = scene.camera.window_shape
     x0, y0, x1, _ = scene.camera.window
@@ -486,9 +488,11 @@ def _marked_pixels(scene: Scene, tracer, settings: Settings, frame: ShadedFrame)
         seen = radiance[rows] if grid.emission is None else radiance[rows] + grid.emission[rows]
         brightest = max(brightest, float(seen.max(initial=0.0)))
     floor = 1e-4 * max(brightest, 1e-30)
-    pixels, contrast = [], []
-    for first_row in range(0, height, frame.band_rows):  # bands of rows
-        last_row = min(first_row + frame.band_rows, height)
+    threads = thread_count(settings.threads)
+    rows_per_band = min(frame.band_rows, max(AA_MIN_BAND_ROWS, -(-height // (2 * threads))))
+
+    def mark(first_row: int) -> tuple[np.ndarray, np.ndarray]:
+        last_row = min(first_row + rows_per_band, height)
         low, high = max(first_row - MARK_RING, 0), min(last_row + MARK_RING, height)
         rows = slice(low * width, high * width)
         band = CentreGrid(grid.index_triangle[rows], grid.shading_normal[rows],
@@ -496,9 +500,10 @@ def _marked_pixels(scene: Scene, tracer, settings: Settings, frame: ShadedFrame)
         marked, step = refine_pixels(scene, band, radiance[rows], (high - low, width), settings, tracer,
                                      (x0, y0 + low, x1, y0 + high), floor)
         inner = (marked // width + low >= first_row) & (marked // width + low < last_row)
-        pixels.append(marked[inner] + low * width)
-        contrast.append(step[inner])
-    return np.concatenate(pixels), np.concatenate(contrast)
+        return marked[inner] + low * width, step[inner]
+    # Bands of rows side by side on the threads, in order.
+    marks = map_batches(mark, range(0, height, rows_per_band), threads)
+    return np.concatenate([m[0] for m in marks]), np.concatenate([m[1] for m in marks])
 
 
 def _sample_bands(row: np.ndarray, samples: np.ndarray, height: int, most_rows: int, most_samples: float):
