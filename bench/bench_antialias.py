@@ -41,9 +41,11 @@ def timed(scene, settings, repeats: int = 1):
     return out, best
 
 
-def blend_scene(path: Path, width: int, edit=None):
-    """The core scene of a .blend at ``width`` pixels across (Blender's exporter, the engine's path);
-    ``edit()``, if given, changes the opened file first (``bench_geometry``'s subdivision level)."""
+def blend_scene(path: Path, width: int, edit=None, height: int | None = None):
+    """The core scene of a .blend at ``width`` pixels across (Blender's exporter, the engine's path) and
+    ``height`` down (default: the .blend's aspect; another aspect shows what the camera's sensor fit gives,
+    as in Blender); ``edit()``, if given, changes the opened file first (``bench_geometry``'s subdivision
+    level)."""
     import bpy
     import lazyvis_addon
     from lazyvis_addon.blender.export import export_depsgraph
@@ -53,7 +55,8 @@ def blend_scene(path: Path, width: int, edit=None):
         edit()
     blender_scene = bpy.context.scene
     render_settings = blender_scene.render
-    height = max(1, round(width * render_settings.resolution_y / render_settings.resolution_x))
+    if height is None:
+        height = max(1, round(width * render_settings.resolution_y / render_settings.resolution_x))
     return export_depsgraph(bpy.context.evaluated_depsgraph_get(), resolution=(width, height),
                             disk_vertices=blender_scene.lazyvis.disk_vertices).scene
 

@@ -61,9 +61,11 @@ BOXES_TIME_FACTOR, DENSE3_TIME_FACTOR = 2.0, 1.5
 LEVEL1_ROW = "suzanne_dense3@level1"  # the subdivision target's baseline (LazyVis' time only)
 
 
-def load_blend(path: Path, width: int, filter_width: float | None, subdivision: int | None = None):
-    """The core scene of a .blend at ``width`` pixels and the Settings the render engine would use;
-    ``subdivision``: every Subdivision Surface modifier's viewport and render levels set to it first."""
+def load_blend(path: Path, width: int, filter_width: float | None, subdivision: int | None = None,
+               height: int | None = None):
+    """The core scene of a .blend at ``width`` pixels (``height``: default the .blend's aspect) and the
+    Settings the render engine would use; ``subdivision``: every Subdivision Surface modifier's viewport
+    and render levels set to it first."""
     import bpy
     import lazyvis_addon
     from lazyvis_addon.blender.properties import settings_from_scene
@@ -74,7 +76,7 @@ def load_blend(path: Path, width: int, filter_width: float | None, subdivision: 
                 if modifier.type == "SUBSURF":
                     modifier.levels = modifier.render_levels = subdivision
 
-    scene = blend_scene(path, width, None if subdivision is None else subdivided)
+    scene = blend_scene(path, width, None if subdivision is None else subdivided, height)
     settings = settings_from_scene(bpy.context.scene)
     lazyvis_addon.unregister()  # blend_scene registers the add-on on every call; the file stays open
     return scene, settings if filter_width is None else replace(settings, filter_width=filter_width)

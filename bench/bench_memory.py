@@ -40,21 +40,6 @@ def simple_scene(width: int, height: int):
     return scene
 
 
-def blend_at(path: Path, width: int, height: int):
-    """The core scene of a .blend rendered at ``width`` x ``height`` (the camera's sensor fit decides what
-    a changed aspect shows, as in Blender) and the Settings the render engine would use."""
-    import bpy
-    import lazyvis_addon
-    from lazyvis_addon.blender.export import export_depsgraph
-    from lazyvis_addon.blender.properties import settings_from_scene
-    lazyvis_addon.register()  # the .blend names the LazyVis engine and carries its settings
-    bpy.ops.wm.open_mainfile(filepath=str(path), load_ui=False)
-    blender_scene = bpy.context.scene
-    scene = export_depsgraph(bpy.context.evaluated_depsgraph_get(), resolution=(width, height),
-                             disk_vertices=blender_scene.lazyvis.disk_vertices).scene
-    return scene, settings_from_scene(blender_scene)
-
-
 def resident_mb(field: str) -> float:
     """``VmRSS`` or ``VmHWM`` of this process in MB (Linux)."""
     for line in Path("/proc/self/status").read_text().splitlines():
@@ -84,7 +69,8 @@ def main() -> int:
     args = parser.parse_args()
     width, height = args.size
     if args.blend is not None:
-        scene, settings = blend_at(args.blend, width, height)
+        from bench_geometry import load_blend
+        scene, settings = load_blend(args.blend, width, None, height=height)
     else:
         scene, settings = simple_scene(width, height), Settings()
     settings = replace(settings, threads=args.threads)
