@@ -235,9 +235,9 @@ def _silhouette_frame(scene: Scene, tracer, extent: float, frames, settings: Set
     progress.end_stage()
 
     rows_per_band = band_rows_for(settings.memory_budget_mb, width)
-    # The frame's own arrays, about 100 bytes a pixel: what anti-aliasing reads of the centres (emission
-    # only once a band emits: most scenes' surfaces do not) and the composed passes.
-    # float32: anti-aliasing reads them for contrasts and normal steps, and pools them into float32 RGBA.
+    # The frame's own arrays (FRAME_PIXEL_BYTES): what anti-aliasing reads of the centres (emission only
+    # once a band emits: most scenes' surfaces do not), float32 as it only takes contrasts and normal steps
+    # from them and pools them into float32 RGBA; and the composed passes.
     radiance = np.zeros((n_pixels, 3), np.float32)
     grid = CentreGrid(np.full(n_pixels, -1, np.int32 if len(scene.triangles) < 2 ** 31 else np.int64),
                       np.zeros((n_pixels, 3), np.float32), None)
@@ -285,9 +285,8 @@ def _silhouette_frame(scene: Scene, tracer, extent: float, frames, settings: Set
     # The passes' blocker count becomes the silhouette arcs crossing the pixel's lights.
     stats["missed_pairs_found"] = []
     stats["pairs_stored"] = int(arcs_per_pixel.sum(dtype=np.int64))
-    count = arcs_per_pixel
     folded = _folded_umbra(frames, umbra, scene.light_count)
-    output = RenderOutput(combined.reshape(height, width, 4), count.reshape(height, width),
+    output = RenderOutput(combined.reshape(height, width, 4), arcs_per_pixel.reshape(height, width),
                           folded.reshape(height, width, scene.light_count), depth.reshape(height, width),
                           normal.reshape(height, width, 3), np.ones((height, width), np.int32))
 
@@ -419,7 +418,7 @@ def _antialias(scene: Scene, tracer, extent: float, frames, settings: Settings, 
     # coverage rays runs on one core otherwise): at least two per thread, each with its thread's share
     # of the budget's samples.
     threads = thread_count(settings.threads)
-    most_rows = min(frame.band_rows, max(AA_MIN_BAND_ROWS, -(-height // (2 * threads))))
+    most_rows = _side_by_side_rows(frame.band_rows, height, threads, int(wanted.sum()), AA_MIN_BAND_SAMPLES)
     bands = _sample_bands(row, wanted, height, most_rows, settings.memory_budget_mb * AA_SAMPLES_PER_MB / threads)
     counters = ("aa_settled_pixels", "aa_coverage_rays", "aa_verified_samples", "verify_rays")
     nested = progress.nested()  # made here: it forwards cancel checks from this thread only
@@ -465,9 +464,22 @@ def _antialias(scene: Scene, tracer, extent: float, frames, settings: Settings, 
     return pixels, pooled, final + 1 if covered else final
 
 
-# Fewest rows of a band of anti-aliasing samples where the budget allows more: its ring of re-shaded
-# rows (a few) stays a small part of it.
+# Anti-aliasing's work is split into bands side by side on the threads only where each band gets at least
+# this much (a band's pass 2, rays and ring of re-shaded rows cost a fixed part: textured.blend at 256 px,
+# 52 k samples in four bands, was 8 % slower than in one), and a band at least AA_MIN_BAND_ROWS rows.
+AA_MIN_BAND_SAMPLES = 1 << 17
+AA_MIN_BAND_PIXELS = 1 << 17
 AA_MIN_BAND_ROWS = 32
+
+
+def _side_by_side_rows(band_rows: int, height: int, threads: int, work: int, least: int) -> int:
+    """Rows per band of anti-aliasing's ``work`` (samples or pixels) on the threads: two bands per thread
+    where each gets ``least`` of it and AA_MIN_BAND_ROWS rows, fewer otherwise, one where the work is
+    small; never more rows than a band of the frame (the budget's)."""
+    bands = min(2 * threads, work // max(least, 1))
+    if bands <= 1:
+        return band_rows
+    return min(band_rows, max(AA_MIN_BAND_ROWS, -(-height // bands)))
 
 
 # Rows around a band that its inner rows' marks depend on: a pair of neighbours marks both, and a pixel
@@ -489,7 +501,7 @@ def _marked_pixels(scene: Scene, tracer, settings: Settings, frame: ShadedFrame)
         brightest = max(brightest, float(seen.max(initial=0.0)))
     floor = 1e-4 * max(brightest, 1e-30)
     threads = thread_count(settings.threads)
-    rows_per_band = min(frame.band_rows, max(AA_MIN_BAND_ROWS, -(-height // (2 * threads))))
+    rows_per_band = _side_by_side_rows(frame.band_rows, height, threads, height * width, AA_MIN_BAND_PIXELS)
 
     def mark(first_row: int) -> tuple[np.ndarray, np.ndarray]:
         last_row = min(first_row + rows_per_band, height)
