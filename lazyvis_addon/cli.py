@@ -143,11 +143,14 @@ class TerminalProgress(Progress):
         self.cancelled = False
         self._drawn = False
         self._last = 0.0
+        self._logged: set[tuple[str, str]] = set()
 
     def on_stage(self, name: str, total: int) -> None:
         if self.tty:
             self._draw(f"{self.prefix}{name}")
-        else:
+            self._last = 0.0  # the stage's bar shows at its first advance
+        elif (self.prefix, name) not in self._logged:  # a log names a stage once, not once per band of rows
+            self._logged.add((self.prefix, name))
             self.stream.write(f"{self.prefix}{name}\n")
             self.stream.flush()
 

@@ -37,6 +37,8 @@ class Progress:
         self.end_stage()
         self._stage, self._stage_start, self._total, self._done = name, time.perf_counter(), int(total), int(done)
         self.on_stage(name, self._total)
+        if self._done:  # a stage taken up again: its bar where it stopped
+            self.on_advance(name, self._done, self._total)
         self.check_cancel()
 
     def advance(self, units: int = 1) -> None:

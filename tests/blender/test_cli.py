@@ -221,6 +221,27 @@ def test_progress_bar_on_a_terminal():
     assert text.endswith("\r")
 
 
+def test_bands_of_rows_resume_their_stages():
+    """A frame in bands takes its stages up again band after band: a terminal's bar goes on where the stage
+    stopped (it does not drop to 0 %), and a log names each stage once per frame, not once per band."""
+    stream = io.StringIO()
+    progress = cli.TerminalProgress(stream, tty=True)
+    progress.begin_stage("Illumination", 8)
+    progress.advance(4)
+    progress.begin_stage("Camera rays", 8, 4)
+    progress.begin_stage("Illumination", 8, 4)
+    assert stream.getvalue().rstrip().endswith("Illumination         [" + "#" * 15 + "." * 15 + "]  50.0%")
+    log = io.StringIO()
+    progress = cli.TerminalProgress(log, tty=False)
+    progress.prefix = "Frame 1 | "
+    for done in (0, 4):  # two bands
+        progress.begin_stage("Camera rays", 8, done)
+        progress.begin_stage("Illumination", 8, done)
+    progress.prefix = "Frame 2 | "
+    progress.begin_stage("Camera rays", 8)
+    assert log.getvalue().splitlines() == ["Frame 1 | Camera rays", "Frame 1 | Illumination", "Frame 2 | Camera rays"]
+
+
 def test_the_command_is_installed_with_the_package():
     scripts = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"]
     assert scripts["lazyvis"] == "lazyvis_addon.cli:main"
