@@ -3,7 +3,6 @@
 import re
 import subprocess
 import sys
-import threading
 import time
 
 import numpy as np
@@ -14,7 +13,7 @@ from lazyvis_addon.core import demo_scenes, illumination
 from lazyvis_addon.core.blocker_map import BlockerMap, detect_seeds, reference_blocker_map
 from lazyvis_addon.core.blockers import BlockerPolygons
 from lazyvis_addon.core.demo_scenes import plane_under_light, quad_triangles
-from lazyvis_addon.core.geometry import light_frames, projected_solid_angle
+from lazyvis_addon.core.geometry import light_frames
 from lazyvis_addon.core.illumination import analytic, outgoing_radiance, visible_pieces
 from lazyvis_addon.core.render import FRAME_PIXEL_BYTES, MIN_WORKING_MB, _primary, band_rows_for, working_budget_mb
 from lazyvis_addon.core.settings import VISIBILITY_METHODS

@@ -29,7 +29,7 @@ from . import rng
 from .camera import camera_rays, clip_distance, window_pixels
 from .facing import cone_attenuation, spread_weight
 from .film import filter_offsets, half_extent
-from .scene import SEEN_DISK, SEEN_ELLIPSE, SEEN_RECTANGLE, SEEN_SPHERE, SEEN_SUN, SeenLights
+from .scene import SEEN_ELLIPSE, SEEN_RECTANGLE, SEEN_SPHERE, SEEN_SUN, SeenLights
 from .settings import Settings
 
 # Camera samples per pixel axis over a light's screen box; samples per pixel where an outline is near (a
