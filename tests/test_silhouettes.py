@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from lazyvis_addon.core import Camera, Materials, Scene, Settings, render
-from lazyvis_addon.core import regions, silhouettes
+from lazyvis_addon.core import edge_tree, regions, silhouettes
 from lazyvis_addon.core.demo_scenes import box_triangles, look_at, plane_under_light, quad_triangles
 from lazyvis_addon.core.geometry import light_frames
 from lazyvis_addon.core.scene import Lights
-from lazyvis_addon.core.silhouettes import MeshEdges
+from lazyvis_addon.core.edge_tree import MeshEdges
 
 CENTRES = Settings(aa_samples=1)
 
@@ -294,8 +294,8 @@ def test_normal_cones_drop_only_edges_the_exact_test_drops(flip, monkeypatch):
     with_cones = render(scene, CENTRES)
     edges = MeshEdges.from_triangles(scene.triangles, light_frames(scene.validated().lights))
     leaves = edges.node_spread[edges.n_leaves - 1:]
-    cones = silhouettes._normal_cones
-    monkeypatch.setattr(silhouettes, "_normal_cones",
+    cones = edge_tree._normal_cones
+    monkeypatch.setattr(edge_tree, "_normal_cones",
                         lambda *args: (cones(*args)[0], np.full(len(cones(*args)[1]), np.inf)))
     without = render(scene, CENTRES)
     assert with_cones.stats["arcs"] == without.stats["arcs"] > 0

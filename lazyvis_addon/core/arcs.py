@@ -57,7 +57,7 @@ def jump_at(couple, r, edge_start, third, triangle, cut_light, face_normal, face
     those of the emitter hull the couple's light excludes: ``part_of`` (T,) int64, the hull of each
     triangle) of the side of the plane through the receiver and the edge that the face's third vertex lies
     on, sign(m . (a - x)) with the face's normal m = (b - a) x (c - a). 0 for an edge between two faces seen
-    from one side: no arc. Records as ``silhouettes.MeshEdges`` holds them."""
+    from one side: no arc. Records as ``edge_tree.MeshEdges`` holds them."""
     excluded = couple[COUPLE_EXCLUDED]
     x0, x1, x2 = couple[COUPLE_POSITION], couple[COUPLE_POSITION + 1], couple[COUPLE_POSITION + 2]
     reach = max(abs(edge_start[r, 0] - x0), abs(edge_start[r, 1] - x1), abs(edge_start[r, 2] - x2))

@@ -3,7 +3,7 @@
 ``silhouettes.silhouette_pieces`` sets up one query per (receiver group, light, side): the box around the
 group and the light, the light's plane and the receivers' height above it, four side planes of the hull
 of the group's box and the light's bounding rectangle (``silhouettes.hull_table``), and sub-groups of a
-few receivers with boxes of their own. Each query walks the edge tree (``silhouettes.MeshEdges``: an
+few receivers with boxes of their own. Each query walks the edge tree (``edge_tree.MeshEdges``: an
 implicit binary tree over leaves of records in Morton order) depth first:
 
 - a node outside the hull, or whose faces all face the group's box one way (its cone of normals), is
@@ -44,7 +44,7 @@ def detect_arcs(edges, leaf_size: int, hulls: np.ndarray, query_light: np.ndarra
 
     Parameters (Q queries of U sub-groups of Nc couples)
     ----------
-    edges : ``silhouettes.MeshEdges``; leaf_size : records per leaf.
+    edges : ``edge_tree.MeshEdges``; leaf_size : records per leaf.
     hulls : (Q, HULL_WIDTH) float64       each query's receiver group and light (``silhouettes.hull_table``).
     query_light : (Q,) int64              the light (cut segments of other lights are skipped).
     units : the sub-groups, a tuple of
@@ -119,7 +119,7 @@ def _box_passes(hull, box_low, box_high):
 def _one_sided(axis, spread, node_low, node_high, box_low, box_high):
     """Every oriented face normal o within ``spread`` of ``axis`` has o . (a - x) of one sign, with a margin
     above the arc test's sign tolerance, for every edge point a in the node's box and x in the receiver
-    box: then every edge under the node has jump 0 there (``silhouettes._normal_cones``)."""
+    box: then every edge under the node has jump 0 there (``edge_tree._normal_cones``)."""
     lowest, highest, far = 0.0, 0.0, 0.0
     for k in range(3):
         d_low, d_high = node_low[k] - box_high[k], node_high[k] - box_low[k]  # a - x over the two boxes

@@ -29,7 +29,8 @@ from .bsdf import SurfaceBsdf
 from .geometry import light_groups
 from .illumination import (VisiblePieces, couple_weights, couples_for, reflected_radiance, standard_mc,
                            verify_visible, visible_pieces)
-from .silhouettes import MeshEdges, compile_kernels, pixel_batch_for, silhouette_pieces
+from .edge_tree import MeshEdges
+from .silhouettes import compile_kernels, pixel_batch_for, silhouette_pieces
 from .terminator import terminator_couples
 from .progress import Progress
 from .scene import LOBES_ALL, Scene
