@@ -2,7 +2,6 @@
 that leaks through the paper's blocker map (sub-pixel leaves, dense smooth meshes, foliage), on broken
 meshes, and unchanged by its batching and cells."""
 
-import dataclasses
 
 import numpy as np
 import pytest
@@ -305,6 +304,60 @@ def test_normal_cones_drop_only_edges_the_exact_test_drops(flip, monkeypatch):
         assert with_cones.stats["nodes_visited"] < without.stats["nodes_visited"]
     else:  # mixed windings: a sphere leaf's normals point both ways, so its cone covers every direction
         assert (leaves[np.isfinite(leaves)] > 1.0).mean() > 0.5
+
+
+def test_every_normal_under_a_node_lies_within_its_cone():
+    """The cones ``detection`` culls by are bounds: each record's two oriented face normals lie within
+    its leaf's spread of the leaf's axis, and each node's cone holds its children's (axis distance plus the
+    child's spread), on a consistently wound sphere and on one with every other face flipped; a leaf with
+    a rim or a cut segment can never be culled (infinite spread)."""
+    for flip in (False, True):
+        sphere = uv_sphere((0.0, 0.0, 0.5), 0.3, rings=24, segments=32)
+        if flip:
+            sphere[::2] = sphere[::2, ::-1]
+        floor = quad_triangles([(-1.0, -1.0, 0.0), (1.0, -1.0, 0.0), (1.0, 1.0, 0.0), (-1.0, 1.0, 0.0)])  # rims
+        triangles = np.concatenate([sphere, floor])
+        edges = MeshEdges.from_triangles(triangles)
+        winding = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+        leaves, n_records = edges.n_leaves, len(edges)
+        two = (edges.triangle[:, 0] >= 0) & (edges.triangle[:, 1] >= 0) & (edges.light < 0)
+        if edges.triangle.shape[1] > 2:
+            two &= (edges.triangle[:, 2:] < 0).all(axis=1)
+        along = np.einsum("ek,ek->e", edges.face_normal[:, 0], winding[np.maximum(edges.triangle[:, 0], 0)])
+        flip_sign = np.where(along < 0, -1.0, 1.0)[:, None]
+        oriented = np.stack([flip_sign * edges.face_normal[:, 0] / edges.face_size[:, 0, None],
+                             -flip_sign * edges.face_normal[:, 1] / np.maximum(edges.face_size[:, 1, None], 1e-300)],
+                            axis=1)
+        record_leaf = np.arange(n_records) // edge_tree.LEAF_EDGES + leaves - 1
+        spread, axis = edges.node_spread, edges.node_axis
+        finite = np.isfinite(spread[record_leaf])
+        assert finite.any() and (~finite).any()
+        assert not np.isfinite(spread[record_leaf[~two]]).any()  # rims and the floor's edges
+        distance = np.linalg.norm(oriented[finite] - axis[record_leaf[finite], None], axis=2)
+        assert (distance <= spread[record_leaf[finite], None] * (1 + 1e-12) + 1e-12).all()
+        inner = np.arange(leaves - 1)
+        for child in (2 * inner + 1, 2 * inner + 2):
+            has_normals = np.abs(axis[child]).sum(axis=1) > 0
+            reach = np.where(has_normals, np.linalg.norm(axis[child] - axis[inner], axis=1), 0.0) + spread[child]
+            assert (reach <= spread[inner] * (1 + 1e-12) + 1e-12).all()
+        # A consistently wound sphere's leaves are cones narrower than 60 degrees (chord 1), cullable; with
+        # mixed windings most cover more than a half space.
+        median = np.median(spread[record_leaf[finite]])
+        assert median > 1.0 if flip else median < 1.0
+
+
+def test_welding_numbers_equal_points_in_lexicographic_order():
+    """``edge_tree.weld`` gives equal rows one id, different rows different ids, numbered as a sort of the
+    distinct rows would (the edge records' order depends on it), on rows with many repeats, negative and
+    large coordinates."""
+    rng = np.random.default_rng(7)
+    distinct = rng.integers(-(1 << 40), 1 << 40, size=(500, 3))
+    distinct[::7, 0] = distinct[1::7, 0][: len(distinct[::7])]        # rows sharing a first coordinate
+    rows = distinct[rng.integers(0, len(distinct), size=5000)]
+    ids = edge_tree.weld(rows)
+    _, expected = np.unique(rows, axis=0, return_inverse=True)
+    np.testing.assert_array_equal(ids, expected.ravel())
+    assert len(edge_tree.weld(np.zeros((0, 3), np.int64))) == 0
 
 
 def test_batches_and_chunks_follow_the_budget_and_change_nothing(monkeypatch):

@@ -15,7 +15,6 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from .blockers import _unique_points
 from .emitters import hull_faces_in_scene
 from .geometry import LightFrames, cross3
 
@@ -91,7 +90,7 @@ class MeshEdges:
         # (cos 2 pi is not 1) would leave two coincident boundary arcs of opposite jumps, which no sign
         # test tells apart.
         quantum = WELD_EPS * max(float(np.abs(points).max()) if len(points) else 1.0, 1e-300)
-        _, vertex_id = _unique_points(np.round(points / quantum))
+        vertex_id = weld(np.round(points / quantum).astype(np.int64))
         positions = np.zeros((int(vertex_id.max()) + 1 if len(vertex_id) else 0, 3))
         positions[vertex_id] = points
         vertex_id = vertex_id.reshape(n, 3)
@@ -100,7 +99,8 @@ class MeshEdges:
         corners = np.sort(vertex_id, axis=1)
         if len(positions) < 1 << 21:  # three ids in one int64 key: a 1-D unique, several times faster
             corners = (corners[:, 0] << 42) | (corners[:, 1] << 21) | corners[:, 2]
-        _, first_copy = np.unique(corners, axis=0, return_index=True)
+        # (``axis=0`` on the one-column keys would sort them as opaque records, several times slower.)
+        _, first_copy = np.unique(corners, axis=0 if corners.ndim > 1 else None, return_index=True)
         single = np.zeros(n, bool)
         single[first_copy] = True
         # Half-edge k of a triangle joins corners k and k + 1; its third vertex is corner k + 2.
@@ -141,16 +141,18 @@ class MeshEdges:
         triangles_of[record, slot] = triangle
         lights = np.full(n_records, -1, np.int64)
         parts = [(start, end, thirds, triangles_of, lights)]
-        if frames is not None:
-            for light in range(len(frames)):  # lights: a handful
-                parts.append(_cut_segments(triangles, frames, light, width))
+        # Every vertex's height above each light's plane (the cut segments' and the in-plane faces').
+        heights = [np.einsum("tvk,k->tv", triangles - frames.origin[light], frames.normal[light])
+                   for light in range(len(frames))] if frames is not None else []
+        for light, height in enumerate(heights):  # lights: a handful
+            parts.append(_cut_segments(triangles, height, frames, light, width))
         start, end, thirds, triangles_of, lights = (np.concatenate([p[i] for p in parts]) for i in range(5))
         winding = cross3(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
         edges = cls._in_tree_order(start, end, thirds, triangles_of, lights, winding)
         edges.n_triangles = n
         edges.part_of = frames.part_of if frames is not None and frames.part_of is not None else \
             hull_faces_in_scene(frames.hulls if frames is not None else None, triangles)
-        edges.in_light_planes = _in_light_planes(triangles, frames, edges.part_of) if frames is not None \
+        edges.in_light_planes = _in_light_planes(triangles, heights, frames, edges.part_of) if frames is not None \
             else np.zeros(0, np.int64)
         edges.lights_seen = np.full(len(edges), ALL_LIGHTS, np.uint64)
         if frames is not None and len(edges):
@@ -219,42 +221,84 @@ def _normal_cones(face_normal: np.ndarray, face_size: np.ndarray, triangle: np.n
     is a silhouette there (``detection``'s walk drops it). Nodes holding a rim, a non-manifold edge, a
     degenerate face or a cut segment get an infinite spread: never dropped this way.
     """
-    two_faces = (triangle[:, :2] >= 0).all(axis=1) & (triangle[:, 2:] < 0).all(axis=1) & (light < 0) & \
-        (face_size[:, :2] > 0).all(axis=1)
-    size = np.where(face_size[:, :2] > 0, face_size[:, :2], 1.0)
-    along = np.einsum("ek,ek->e", face_normal[:, 0], winding[np.maximum(triangle[:, 0], 0)]) if len(winding) else \
-        np.zeros(len(light))
-    two_faces &= along != 0
-    flip = np.where(along < 0, -1.0, 1.0)[:, None]
-    oriented = np.stack([flip * face_normal[:, 0] / size[:, 0, None], -flip * face_normal[:, 1] / size[:, 1, None]],
-                        axis=1)
-    records = padded_leaves * LEAF_EDGES
-    total = np.zeros((records, 3))
-    total[:len(light)] = np.where(two_faces[:, None], oriented.sum(axis=1), 0.0)
-    unit = np.zeros((records, 2, 3))
-    unit[:len(light)] = np.where(two_faces[:, None, None], oriented, 0.0)
-    blocked = np.zeros(records, bool)
-    blocked[:len(light)] = ~two_faces
-    # Leaves: the axis is the normalised sum, the spread the farthest normal from it.
-    leaf_total = total.reshape(padded_leaves, LEAF_EDGES, 3).sum(axis=1)
-    leaf_axis = leaf_total / np.maximum(np.linalg.norm(leaf_total, axis=1), 1e-300)[:, None]
-    distance = np.linalg.norm(unit.reshape(padded_leaves, LEAF_EDGES, 2, 3) - leaf_axis[:, None, None], axis=3)
-    present = np.abs(unit.reshape(padded_leaves, LEAF_EDGES, 2, 3)).sum(axis=3) > 0
-    leaf_spread = np.where(present, distance, 0.0).max(axis=(1, 2))
-    leaf_spread[blocked.reshape(padded_leaves, LEAF_EDGES).any(axis=1)] = np.inf
-    axes, spreads, totals = [leaf_axis], [leaf_spread], [leaf_total]
-    while len(totals[-1]) > 1:  # tree levels: log2 of the leaves
-        child_total, child_axis, child_spread = totals[-1], axes[-1], spreads[-1]
-        level_total = child_total[0::2] + child_total[1::2]
-        level_axis = level_total / np.maximum(np.linalg.norm(level_total, axis=1), 1e-300)[:, None]
-        # |o - axis| <= |o - child axis| + |child axis - axis|; an empty child (no normals) adds nothing.
-        reach = [np.where(np.abs(child_total[k::2]).sum(axis=1) > 0,
-                          np.linalg.norm(child_axis[k::2] - level_axis, axis=1) + child_spread[k::2], child_spread[k::2])
-                 for k in (0, 1)]
-        totals.append(level_total)
-        axes.append(level_axis)
-        spreads.append(np.maximum(reach[0], reach[1]))
-    return np.concatenate(axes[::-1]), np.concatenate(spreads[::-1])
+    n_nodes = 2 * padded_leaves - 1
+    axis, spread = np.zeros((n_nodes, 3)), np.zeros(n_nodes)
+    if len(winding) == 0:
+        winding = np.zeros((1, 3))
+    _normal_cone_tree(np.ascontiguousarray(face_normal, np.float64), np.ascontiguousarray(face_size, np.float64),
+                      np.ascontiguousarray(triangle, np.int64), np.ascontiguousarray(light, np.int64),
+                      np.ascontiguousarray(winding, np.float64), padded_leaves, axis, spread)
+    return axis, spread
+
+
+@njit(cache=True, nogil=True)
+def _normal_cone_tree(face_normal, face_size, triangle, light, winding, padded_leaves, axis, spread):
+    """``_normal_cones`` into ``axis`` (2P - 1, 3) and ``spread`` (2P - 1,), heap order: the leaves from
+    their records, then each inner node from its two children, the last first. (As numpy passes over the
+    tree's levels it was a fifth of the edge tree's time.)"""
+    n_records, width = len(light), triangle.shape[1]
+    total = np.zeros((2 * padded_leaves - 1, 3))   # sum of the oriented normals under each node
+    oriented = np.empty((2, 3))
+    for leaf in range(padded_leaves):
+        node = padded_leaves - 1 + leaf
+        first, last = leaf * LEAF_EDGES, min((leaf + 1) * LEAF_EDGES, n_records)
+        blocked = False
+        for r in range(first, last):  # the sum first: the axis is its direction
+            if not _two_faces(r, face_normal, face_size, triangle, light, winding, width, oriented):
+                blocked = True
+                continue
+            for k in range(3):
+                total[node, k] += oriented[0, k] + oriented[1, k]
+        length = max(np.sqrt(total[node, 0] ** 2 + total[node, 1] ** 2 + total[node, 2] ** 2), 1e-300)
+        for k in range(3):
+            axis[node, k] = total[node, k] / length
+        farthest = 0.0
+        for r in range(first, last):  # then the farthest normal from it
+            if not _two_faces(r, face_normal, face_size, triangle, light, winding, width, oriented):
+                continue
+            for f in range(2):
+                d0, d1, d2 = oriented[f, 0] - axis[node, 0], oriented[f, 1] - axis[node, 1], oriented[f, 2] - axis[node, 2]
+                farthest = max(farthest, np.sqrt(d0 * d0 + d1 * d1 + d2 * d2))
+        spread[node] = np.inf if blocked else farthest
+    for node in range(padded_leaves - 2, -1, -1):  # inner nodes, children first
+        for k in range(3):
+            total[node, k] = total[2 * node + 1, k] + total[2 * node + 2, k]
+        length = max(np.sqrt(total[node, 0] ** 2 + total[node, 1] ** 2 + total[node, 2] ** 2), 1e-300)
+        for k in range(3):
+            axis[node, k] = total[node, k] / length
+        reach = 0.0
+        for child in (2 * node + 1, 2 * node + 2):
+            # |o - axis| <= |o - child axis| + |child axis - axis|; an empty child (no normals) adds nothing.
+            child_reach = spread[child]
+            if abs(total[child, 0]) + abs(total[child, 1]) + abs(total[child, 2]) > 0.0:
+                d0, d1, d2 = axis[child, 0] - axis[node, 0], axis[child, 1] - axis[node, 1], axis[child, 2] - axis[node, 2]
+                child_reach += np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            reach = max(reach, child_reach)
+        spread[node] = reach
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _two_faces(r, face_normal, face_size, triangle, light, winding, width, oriented):
+    """Record r is a mesh edge of exactly two non-degenerate faces, the first not perpendicular to its
+    triangle's winding normal: then its two oriented unit normals are written to ``oriented`` (2, 3)
+    (the first along the winding, the second the other face's normal negated likewise)."""
+    if light[r] >= 0 or triangle[r, 0] < 0 or triangle[r, 1] < 0:
+        return False
+    for k in range(2, width):
+        if triangle[r, k] >= 0:
+            return False
+    if not (face_size[r, 0] > 0.0 and face_size[r, 1] > 0.0):
+        return False
+    w = triangle[r, 0] if triangle[r, 0] < len(winding) else 0
+    along = face_normal[r, 0, 0] * winding[w, 0] + face_normal[r, 0, 1] * winding[w, 1] + \
+        face_normal[r, 0, 2] * winding[w, 2]
+    if along == 0.0:
+        return False
+    flip = -1.0 if along < 0.0 else 1.0
+    for k in range(3):
+        oriented[0, k] = flip * face_normal[r, 0, k] / face_size[r, 0]
+        oriented[1, k] = -flip * face_normal[r, 1, k] / face_size[r, 1]
+    return True
 
 
 # Every light's bit: a record or node that may be a silhouette from anywhere (lights beyond the 64th are
@@ -341,30 +385,30 @@ PLANE_FACE_EPS = 1e-6
 CUT_EPS = 1e-9
 
 
-def _in_light_planes(triangles: np.ndarray, frames: LightFrames, part_of: np.ndarray) -> np.ndarray:
+def _in_light_planes(triangles: np.ndarray, heights: list, frames: LightFrames, part_of: np.ndarray) -> np.ndarray:
     """Sorted keys light * T + triangle (int64) of the faces that block nothing of a light: those lying in
     its plane, and an emitter hull's own faces for the lights that exclude them (``frames.excluded``;
-    ``part_of`` (T,) from ``emitters.hull_faces_in_scene``)."""
+    ``part_of`` (T,) from ``emitters.hull_faces_in_scene``); ``heights``: per light, (T, 3) float64 the
+    vertices' heights above its plane."""
     scale = max(float(np.abs(triangles).max()) if len(triangles) else 1.0, 1e-300)
     keys = []
     for light in range(len(frames)):  # lights: a handful
-        height = np.einsum("tvk,k->tv", triangles - frames.origin[light], frames.normal[light])
-        flat = np.flatnonzero((np.abs(height) <= PLANE_FACE_EPS * scale).all(axis=1))
+        flat = np.flatnonzero((np.abs(heights[light]) <= PLANE_FACE_EPS * scale).all(axis=1))
         keys.append(light * len(triangles) + flat)
         if frames.excluded[light] >= 0:
             keys.append(light * len(triangles) + np.flatnonzero(part_of == frames.excluded[light]))
     return np.unique(np.concatenate(keys)) if keys else np.zeros(0, np.int64)
 
 
-def _cut_segments(triangles: np.ndarray, frames: LightFrames, light: int, k: int = 2):
-    """Where triangles cross light ``light``'s plane: the segment in the plane, as an edge record whose
-    two 'third vertices' are a vertex in front of the plane and one behind it.
+def _cut_segments(triangles: np.ndarray, height: np.ndarray, frames: LightFrames, light: int, k: int = 2):
+    """Where triangles cross light ``light``'s plane (``height`` (T, 3) float64: the vertices' heights above
+    it): the segment in the plane, as an edge record whose two 'third vertices' are a vertex in front of the
+    plane and one behind it.
 
     A vertex within CUT_EPS of the scene's size from the plane lies on it (it is an end of the segment), and
     only a triangle with a vertex beyond that on each side crosses: the faces next to a light's own face
     (a mesh emitter's), which touch its plane along an edge, are no crossing by rounding. The point where
     an edge crosses is interpolated from its vertex in front, the same for both triangles on the edge."""
-    height = np.einsum("tvk,k->tv", triangles - frames.origin[light], frames.normal[light])
     scale = max(float(np.abs(triangles).max()) if len(triangles) else 1.0, float(np.abs(frames.origin[light]).max()),
                 1e-300)
     side = np.where(height > CUT_EPS * scale, 1, np.where(height < -CUT_EPS * scale, -1, 0))
@@ -394,14 +438,80 @@ def _cut_segments(triangles: np.ndarray, frames: LightFrames, light: int, k: int
     return start, end, third, triangle, np.full(len(crossing), light, np.int64)
 
 
+def weld(quantized: np.ndarray) -> np.ndarray:
+    """The vertex id (N,) int64 of each of ``quantized`` (N, 3) int64 points: equal rows share an id, and
+    ids follow the rows' lexicographic order (as a sort of all rows would number them). One pass of a hash
+    table over the rows, then a sort of the distinct ones only (a mesh's corners are mostly shared: Suzanne
+    at level 3 has 189 k corners and 32 k vertices); the lexicographic sort of every row took a tenth of
+    the edge tree's time."""
+    if len(quantized) == 0:
+        return np.zeros(0, np.int64)
+    first = _first_equal_rows(np.ascontiguousarray(quantized, np.int64))
+    distinct = np.flatnonzero(first == np.arange(len(first)))
+    rows = quantized[distinct]
+    rank = np.empty(len(first), np.int64)
+    rank[distinct[np.lexsort((rows[:, 2], rows[:, 1], rows[:, 0]))]] = np.arange(len(distinct))
+    return rank[first]
+
+
+@njit(cache=True, nogil=True)
+def _first_equal_rows(rows):
+    """For each row of ``rows`` (N, 3) int64 the index of the first row equal to it (open addressing, a
+    table of at least twice N slots)."""
+    size = 1
+    while size < 2 * len(rows):
+        size <<= 1
+    mask = np.uint64(size - 1)
+    table = np.full(size, -1, np.int64)
+    first = np.empty(len(rows), np.int64)
+    for i in range(len(rows)):
+        h = (np.uint64(rows[i, 0]) * np.uint64(0x9E3779B97F4A7C15)) ^ \
+            (np.uint64(rows[i, 1]) * np.uint64(0xC2B2AE3D27D4EB4F)) ^ \
+            (np.uint64(rows[i, 2]) * np.uint64(0x165667B19E3779F9))
+        slot = (h ^ (h >> np.uint64(29))) & mask
+        while True:  # probes: a few
+            j = table[slot]
+            if j < 0:
+                table[slot] = i
+                first[i] = i
+                break
+            if rows[j, 0] == rows[i, 0] and rows[j, 1] == rows[i, 1] and rows[j, 2] == rows[i, 2]:
+                first[i] = j
+                break
+            slot = (slot + np.uint64(1)) & mask
+    return first
+
+
 def _morton(points: np.ndarray) -> np.ndarray:
     """30-bit Morton codes (N,) int64 of points (N, 3) in their bounding box."""
     if len(points) == 0:
         return np.zeros(0, np.int64)
     low, high = points.min(axis=0), points.max(axis=0)
     cells = ((points - low) / np.maximum(high - low, 1e-300) * 1023).astype(np.int64).clip(0, 1023)
-    code = np.zeros(len(points), np.int64)
-    for bit in range(10):  # bits of each coordinate
-        for axis in range(3):  # coordinates
-            code |= ((cells[:, axis] >> bit) & 1) << (3 * bit + axis)
+    return _interleave(np.ascontiguousarray(cells))
+
+
+@njit(cache=True, nogil=True)
+def _interleave(cells):
+    """Bit b of coordinate a of ``cells`` (N, 3) int64 (0 .. 1023) to bit 3b + a of each code (N,) int64
+    (as 30 numpy passes over the points it was most of the Morton order's time)."""
+    code = np.zeros(len(cells), np.int64)
+    for i in range(len(cells)):
+        value = 0
+        for bit in range(10):
+            for axis in range(3):
+                value |= ((cells[i, axis] >> bit) & 1) << (3 * bit + axis)
+        code[i] = value
     return code
+
+
+def compile_edge_tree() -> tuple:
+    """Compile the edge tree's kernels (or load them from Numba's cache) on tiny inputs; returns them."""
+    three = np.zeros((1, 3))
+    _silhouette_lights(three, np.zeros((1, 2, 3)), np.zeros((1, 2)), np.zeros((1, 2)), np.zeros((1, 2), np.int64),
+                       np.zeros(1, np.int64), np.zeros((1, 3, 3)), np.zeros(1, np.int64), np.zeros(1, np.uint64))
+    _normal_cone_tree(np.zeros((1, 2, 3)), np.zeros((1, 2)), np.zeros((1, 2), np.int64), np.zeros(1, np.int64), three,
+                      1, np.zeros((1, 3)), np.zeros(1))
+    _first_equal_rows(np.zeros((1, 3), np.int64))
+    _interleave(np.zeros((1, 3), np.int64))
+    return _silhouette_lights, _normal_cone_tree, _first_equal_rows, _interleave

@@ -47,7 +47,7 @@ from .facing import compile_facing
 from .detection import (HULL_BASE, HULL_BOX_HIGH, HULL_BOX_LOW, HULL_EPS, HULL_HEIGHT, HULL_HIGH, HULL_LOW,
                         HULL_SIDE_NORMAL, HULL_SIDE_OFFSET, HULL_SIDE_VALID, HULL_TOWARD, HULL_WIDTH, compile_detection,
                         detect_arcs)
-from .edge_tree import LEAF_EDGES, MeshEdges, _morton, _silhouette_lights
+from .edge_tree import LEAF_EDGES, MeshEdges, _morton, compile_edge_tree
 from .geometry import (_REFERENCE_WEIGHTS, PLANE_EPS, LightFrames, ReceiverLight, _reference_points,
                        compile_geometry, polygon_bounds, reference_points, trim)
 from .regions import compile_regions, couple_regions
@@ -249,11 +249,9 @@ def compile_kernels() -> bool:
                np.zeros((1, 2)), np.empty((1, HULL_WIDTH)))
     _fan_triangles_kernel(np.zeros(1, np.int64), np.zeros(1, np.int64), three, three, three, three,
                           np.zeros((1, 2)), three, three, np.empty((1, 3, 2)))
-    _silhouette_lights(three, np.zeros((1, 2, 3)), np.zeros((1, 2)), np.zeros((1, 2)), np.zeros((1, 2), np.int64),
-                       np.zeros(1, np.int64), np.zeros((1, 3, 3)), np.zeros(1, np.int64), np.zeros(1, np.uint64))
     kernels = (detection_module._detect, *compile_regions(), arrangement_module._fans,
                arrangement_module._jumps, _cone_planes, _bounding_cones, _reference_points, _hull_rows,
-               _silhouette_lights, _fan_triangles_kernel, *compile_geometry(), *compile_terminator(),
+               *compile_edge_tree(), _fan_triangles_kernel, *compile_geometry(), *compile_terminator(),
                *compile_facing(), *compile_emitters())
     return any(kernel.stats.cache_misses for kernel in kernels)
 
