@@ -422,6 +422,44 @@ def test_coverage_counts_what_each_ray_sees(monkeypatch):
                                   [0, 1, 8, 9, 21, 22, 23, 29, 30, 31, 37, 38, 39])
 
 
+def test_a_pilot_coverage_is_reused_only_where_the_pixel_drew_no_more(monkeypatch):
+    """``render._with_known_coverage``: pixels that kept their pilot reuse its coverage (the same rays), the
+    others are traced again with all their samples; the merged coverage equals one traced afresh for all,
+    entry for entry, and counts the rays of both. A whole render with and without the reuse gives the
+    same pixels bit for bit."""
+    render_module = importlib.import_module("lazyvis_addon.core.render")
+    scene = rods_scene(24, count=3).validated()
+    tracer = RayTracer(scene.triangles)
+    settings = Settings(aa_samples=4, aa_coverage_rays=8)
+    pixel_global = _global_pixels(scene.camera)
+    pixels = np.arange(24 * 24)
+    strata = surface_strata(scene)
+    pilot = np.full(len(pixels), 3)
+    drawn = np.where(pixels % 3 == 0, 9, 3)                       # a third drew more than their pilot
+    origins, directions, _, _, _ = filter_rays(scene.camera, pixels, drawn, 0, settings, pixel_global)
+    sample_stratum = stratum_of(tracer.intersect(origins, directions, None).index_triangle, strata)
+    pilot_stratum = sample_stratum[np.concatenate([np.arange(s, s + 3) for s in np.cumsum(drawn) - drawn])]
+    known = pixel_coverage(scene, tracer, pixels, pilot, pilot_stratum, strata, settings, pixel_global)
+    stats = {}
+    merged = render_module._with_known_coverage(scene, tracer, pixels, drawn, sample_stratum, strata, settings,
+                                                pixel_global, stats, known, drawn == pilot)
+    fresh = pixel_coverage(scene, tracer, pixels, drawn, sample_stratum, strata, settings, pixel_global)
+    np.testing.assert_array_equal(merged.key, fresh.key)
+    np.testing.assert_array_equal(merged.fraction, fresh.fraction)
+    assert stats["aa_coverage_rays"] == known.rays + np.maximum(4 * 9, 8) * (drawn > 3).sum()
+    assert (merged.stratum != merged.stratum[0]).any()
+    # A render: the same image with the reuse turned off.
+    scene = rods_scene(32, count=3)
+    with_reuse = render(scene, settings)
+    monkeypatch.setattr(render_module, "_with_known_coverage",
+                        lambda scene, tracer, pixels, drawn, sample_stratum, strata, settings, pixel_global, stats,
+                        known, reuse: pixel_coverage(scene, tracer, pixels, drawn, sample_stratum, strata, settings,
+                                                     pixel_global))
+    without = render(scene, settings)
+    np.testing.assert_array_equal(with_reuse.combined, without.combined)
+    assert with_reuse.stats["aa_settled_pixels"] > 0
+
+
 def test_samples_spread_as_far_as_cycles_pixel_filter_type():
     """Box: every sample in its own pixel (Cycles forces width 1); Blackman-Harris reaches the width;
     Gaussian 1.5 times the width (Cycles tabulates it over 3 widths)."""

@@ -13,7 +13,7 @@ from typing import Callable
 
 import numpy as np
 
-from .antialias import (PILOT_SAMPLES, allocate_samples, centre_suffices, covers_one_surface, cull_to_samples,
+from .antialias import (PILOT_SAMPLES, Coverage, allocate_samples, centre_suffices, covers_one_surface, cull_to_samples,
                         foreign_samples, inherit_blockers, landing_pixels, lattice_pixels, pixel_coverage,
                         pool_samples, refine_pixels, sample_rgba, settled_pixels, stratum_of, subpixel_samples,
                         surface_strata)
@@ -439,12 +439,11 @@ def _antialias(scene: Scene, tracer, extent: float, frames, settings: Settings, 
         shading = (scene, tracer, extent, band_settings, pixel_global, frames, frame.polygons, nested, counted,
                    frame.lazy_state, frame.verify, frame.edges)
         band = pixels[chosen]
-        drawn, rgba, position, triangle = _shade_until_settled(band, wanted[chosen], contrast[chosen],
-                                                               frame.centres(band), frame.radiance[band], strata,
-                                                               shading, own)
+        drawn, rgba, position, triangle, pilot_coverage = _shade_until_settled(
+            band, wanted[chosen], contrast[chosen], frame.centres(band), frame.radiance[band], strata, shading, own)
         if covered:
             values = _pool_with_coverage(scene, tracer, frame.centres, frame.radiance, band, drawn, rgba, position,
-                                         triangle, strata, settings, pixel_global, counted)
+                                         triangle, strata, settings, pixel_global, counted, pilot_coverage)
         else:
             owner = np.repeat(np.arange(len(band)), drawn)
             values = pool_samples(rgba, position, owner, band, drawn, camera.window, settings)
@@ -891,7 +890,7 @@ def _shade_samples(pixels: np.ndarray, counts: np.ndarray, scene: Scene, tracer,
 
 def _shade_until_settled(pixels: np.ndarray, drawn: np.ndarray, contrast: np.ndarray, centre: SurfacePoints,
                          centre_radiance: np.ndarray, strata: np.ndarray, shading: tuple, counted: np.ndarray | None = None
-                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple | None]:
     """Shade the anti-aliasing samples of ``pixels`` (P,): a pilot of ``PILOT_SAMPLES`` each, then the rest
     of ``drawn`` (P,) only where the pilot has not settled (``antialias.settled_pixels``).
 
@@ -900,20 +899,23 @@ def _shade_until_settled(pixels: np.ndarray, drawn: np.ndarray, contrast: np.nda
     ``shading`` the arguments ``_shade_samples`` takes after the counts; ``counted`` (P,) bool the pixels
     whose settling the stats count (default all).
     Returns the samples drawn per pixel (P,) int64 and ``_shade_samples``' RGBA, positions and triangles of
-    them, pixel-major: each pixel's pilot, then its further samples (the next points of its sequence).
+    them, pixel-major: each pixel's pilot, then its further samples (the next points of its sequence); and
+    the pilot's coverage with the pixels (P,) bool that drew only their pilot, whose coverage it is
+    (``_pool_with_coverage`` traces theirs again otherwise), or None where none was traced.
     """
     scene, tracer, settings, pixel_global, stats = shading[0], shading[1], shading[3], shading[4], shading[8]
     pilot = np.minimum(drawn, PILOT_SAMPLES) if settings.aa_settle_tolerance > 0 else drawn
     rgba, position, triangle = _shade_samples(pixels, pilot, *shading)
     rest = drawn - pilot
     if not rest.any():
-        return drawn, rgba, position, triangle
+        return drawn, rgba, position, triangle, None
     centre_rgba = sample_rgba(centre_radiance, centre, scene, settings)
     centre_stratum = stratum_of(centre.index_triangle, strata)
     pilot_stratum = stratum_of(triangle, strata)
+    pilot_coverage = None
     if settings.aa_coverage_rays > 0:
-        one_surface = covers_one_surface(pixel_coverage(scene, tracer, pixels, pilot, pilot_stratum, strata,
-                                                        settings, pixel_global), centre_stratum)
+        pilot_coverage = pixel_coverage(scene, tracer, pixels, pilot, pilot_stratum, strata, settings, pixel_global)
+        one_surface = covers_one_surface(pilot_coverage, centre_stratum)
     else:
         owner = np.repeat(np.arange(len(pixels)), pilot)
         one_surface = np.bincount(owner, weights=pilot_stratum != centre_stratum[owner], minlength=len(pixels)) == 0
@@ -921,8 +923,9 @@ def _shade_until_settled(pixels: np.ndarray, drawn: np.ndarray, contrast: np.nda
     more = ~settled_pixels(rgba, pilot, centre_rgba, one_surface, settings.aa_settle_tolerance * scale) & (rest > 0)
     settled = ~more if counted is None else ~more & counted
     stats["aa_settled_pixels"] = stats.get("aa_settled_pixels", 0) + int(settled.sum())
+    known = None if pilot_coverage is None else (pilot_coverage, ~more)
     if not more.any():
-        return pilot, rgba, position, triangle
+        return pilot, rgba, position, triangle, known
     extra = _shade_samples(pixels[more], rest[more], *shading, first=pilot[more])
     final = np.where(more, drawn, pilot)
     start = np.cumsum(final) - final
@@ -935,7 +938,7 @@ def _shade_until_settled(pixels: np.ndarray, drawn: np.ndarray, contrast: np.nda
         out = np.empty((int(final.sum()),) + first_part.shape[1:], first_part.dtype)
         out[pilot_rows], out[extra_rows] = first_part, second_part
         merged.append(out)
-    return (final, *merged)
+    return (final, *merged, known)
 
 
 def _ranks(counts: np.ndarray) -> np.ndarray:
@@ -946,7 +949,8 @@ def _ranks(counts: np.ndarray) -> np.ndarray:
 
 def _pool_with_coverage(scene: Scene, tracer, centres: Callable, radiance: np.ndarray, pixels: np.ndarray,
                         drawn: np.ndarray, rgba: np.ndarray, position: np.ndarray, triangle: np.ndarray,
-                        strata: np.ndarray, settings: Settings, pixel_global: np.ndarray, stats: dict) -> np.ndarray:
+                        strata: np.ndarray, settings: Settings, pixel_global: np.ndarray, stats: dict,
+                        known: tuple | None = None) -> np.ndarray:
     """Filtered RGBA (P, 4) of the anti-aliased ``pixels`` from their ``drawn`` (P,) shaded samples (RGBA
     (N, 4), raster positions (N, 2), triangles seen (N,)), coverage rays and the centres of the pixels
     under their filters (pass 1's radiance (H * W, 3) over the window; ``centres``: window-local pixels ->
@@ -954,11 +958,17 @@ def _pool_with_coverage(scene: Scene, tracer, centres: Callable, radiance: np.nd
 
     Which surface each sample, coverage ray and centre sees: the jumps between surfaces come from the
     cheap coverage rays, and the shaded points only average within each surface (``pool_samples``).
+    ``known``: a coverage traced already (``_shade_until_settled``'s pilot) and the pixels (P,) bool whose
+    coverage it is for their ``drawn`` samples; only the others' is traced here.
     """
     camera = scene.camera
     sample_stratum = stratum_of(triangle, strata)
-    coverage = pixel_coverage(scene, tracer, pixels, drawn, sample_stratum, strata, settings, pixel_global)
-    stats["aa_coverage_rays"] = stats.get("aa_coverage_rays", 0) + coverage.rays
+    if known is None:
+        coverage = pixel_coverage(scene, tracer, pixels, drawn, sample_stratum, strata, settings, pixel_global)
+        stats["aa_coverage_rays"] = stats.get("aa_coverage_rays", 0) + coverage.rays
+    else:
+        coverage = _with_known_coverage(scene, tracer, pixels, drawn, sample_stratum, strata, settings, pixel_global,
+                                        stats, *known)
     lattice = lattice_pixels(pixels, camera.window_shape, settings.filter_reach)
     lattice_points = centres(lattice)
     lattice_position = np.stack(pixel_coordinates(camera, lattice), axis=1) + 0.5
@@ -967,6 +977,25 @@ def _pool_with_coverage(scene: Scene, tracer, centres: Callable, radiance: np.nd
                         np.concatenate([position, lattice_position]), owner, pixels, drawn, camera.window, settings,
                         np.concatenate([sample_stratum, stratum_of(lattice_points.index_triangle, strata)]),
                         coverage, lattice_density=1.0)
+
+
+def _with_known_coverage(scene: Scene, tracer, pixels: np.ndarray, drawn: np.ndarray, sample_stratum: np.ndarray,
+                         strata: np.ndarray, settings: Settings, pixel_global: np.ndarray, stats: dict,
+                         known: Coverage, reuse: np.ndarray) -> Coverage:
+    """``pixel_coverage`` of ``pixels`` with ``drawn`` samples, where the pixels ``reuse`` (P,) bool have it in
+    ``known`` already (the same rays: a pixel's coverage depends only on its samples drawn): the others' is
+    traced and the two merged in key order. Counts every ray traced, the known ones included."""
+    redo = np.flatnonzero(~reuse)
+    none = np.zeros(0, np.int64)
+    fresh = pixel_coverage(scene, tracer, pixels[redo], drawn[redo], sample_stratum[np.repeat(~reuse, drawn)], strata,
+                           settings, pixel_global) if len(redo) else Coverage(none, none, np.zeros(0), known.stride)
+    stats["aa_coverage_rays"] = stats.get("aa_coverage_rays", 0) + known.rays + fresh.rays
+    kept = reuse[known.pixel]
+    pixel = np.concatenate([known.pixel[kept], redo[fresh.pixel]])
+    stratum = np.concatenate([known.stratum[kept], fresh.stratum])
+    fraction = np.concatenate([known.fraction[kept], fresh.fraction])
+    order = np.argsort(pixel * known.stride + stratum + 1, kind="stable")
+    return Coverage(pixel[order], stratum[order], fraction[order], known.stride, known.rays + fresh.rays)
 
 
 def _clamped_caps(surface: SurfacePoints, frames) -> set[int]:
