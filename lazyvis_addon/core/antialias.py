@@ -422,17 +422,20 @@ def centre_suffices(scene: Scene, tracer, pixels: np.ndarray, centre_triangle: n
     textured = np.zeros(len(pixels), bool)
     if scene.materials.texture_index is not None and len(scene.material_index):
         textured = (material >= 0) & (scene.materials.texture_index[np.maximum(material, 0)] >= 0)
+    # Only these can keep their centre: no rays for the others (a textured frame's edge pixels are mostly
+    # texture edges).
+    candidates = np.flatnonzero((centre_triangle >= 0) & ~textured)
     threads = thread_count(settings.threads)
     step = max(1, COVERAGE_BATCH // rays // threads)  # the batches in flight: a million rays in all
 
     def test(lo: int) -> None:
-        rows = slice(lo, lo + step)
+        rows = candidates[lo:lo + step]
         origins, directions, _, _, _ = filter_rays(scene.camera, pixels[rows], rays, 0, settings, pixel_global)
         seen = tracer.intersect(origins, directions, clip_distance(scene.camera, directions)).index_triangle \
             .reshape(-1, rays)
         out[rows] = (seen == centre_triangle[rows, None]).all(axis=1)
-    map_batches(test, range(0, len(pixels), step), threads)  # batches of pixels on the thread pool
-    return out & (centre_triangle >= 0) & ~textured
+    map_batches(test, range(0, len(candidates), step), threads)  # batches of pixels on the thread pool
+    return out
 
 
 def covers_one_surface(coverage: Coverage, centre_stratum: np.ndarray) -> np.ndarray:
