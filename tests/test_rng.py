@@ -58,19 +58,7 @@ def _mix64_reference(x: np.ndarray) -> np.ndarray:
 
 
 def uniforms_reference(seed: int, frame: int, stream: int, pixel: np.ndarray, index: np.ndarray, dims: int) -> np.ndarray:
-    """Uniform numbers in [0, 1), shape (N, dims) float64.
-
-    Parameters
-    ----------
-    seed, frame, stream : int
-        Global identifiers mixed into every number.
-    pixel : (N,) int64
-        Global pixel index in the full frame (``y * width + x``), never a window-local index.
-    index : (N,) int64
-        Which number of this pixel (for instance ``light * samples + sample``).
-    dims : int
-        Uniforms per entry.
-    """
+    """``rng.uniforms``, as numpy passes."""
     with np.errstate(over="ignore"):
         base = _mix64_reference(np.uint64(seed & 0xFFFFFFFF) * np.uint64(0x9E3779B97F4A7C15)
                       + np.uint64(((frame & 0xFFFFFF) << 8) | (stream & 0xFF)))
@@ -104,20 +92,7 @@ def _owen_scramble_reference(x: np.ndarray, seed: np.ndarray) -> np.ndarray:
 
 
 def sobol_2d_reference(seed: int, frame: int, stream: int, pixel: np.ndarray, index: np.ndarray) -> np.ndarray:
-    """Points ``index`` of the first two dimensions of Sobol's (0, 2)-sequence, Owen-scrambled per pixel.
-
-    The first 2^m points of a pixel fall one in each cell of every 2^a x 2^b grid with a + b = m (its
-    strata of all shapes, not only squares), any count of points is well spread, and a later batch
-    continues the same sequence. Scrambling makes each point uniform on [0, 1)^2 and pixels independent.
-
-    Parameters
-    ----------
-    pixel : (N,) int64   global pixel index (as for ``uniforms``); index : (N,) int64 point of that pixel.
-
-    Returns
-    -------
-    (N, 2) float64 in [0, 1).
-    """
+    """``rng.sobol_2d``, as numpy passes."""
     index = np.asarray(index, dtype=np.int64)
     if len(index) and (index.min() < 0 or index.max() >= 2 ** 32):
         raise ValueError("Sobol index out of range")

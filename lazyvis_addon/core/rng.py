@@ -19,24 +19,13 @@ STREAM_FILM = 5
 STREAM_GLOSSY_MC = 6
 STREAM_SEEN_LIGHTS = 7
 
-_MASK64 = np.uint64(0xFFFFFFFFFFFFFFFF)
 _MASK32 = 0xFFFFFFFF
-
-
-def _mix64(x: np.ndarray) -> np.ndarray:
-    """SplitMix64 / MurmurHash3 finaliser on uint64 arrays (wrapping arithmetic is intended)."""
-    x = x ^ (x >> np.uint64(30))
-    x = x * np.uint64(0xBF58476D1CE4E5B9)
-    x = x ^ (x >> np.uint64(27))
-    x = x * np.uint64(0x94D049BB133111EB)
-    return x ^ (x >> np.uint64(31))
 
 
 def _base_key(seed: int, frame: int, stream: int) -> np.uint64:
     """The part of every key that (seed, frame, stream) give."""
-    with np.errstate(over="ignore"):
-        return _mix64(np.array([np.uint64(seed & 0xFFFFFFFF) * np.uint64(0x9E3779B97F4A7C15)
-                                + np.uint64(((frame & 0xFFFFFF) << 8) | (stream & 0xFF))], np.uint64))[0]
+    # (a compiled function returns a uint64 as a Python int: typed again, the kernels take it as uint64)
+    return np.uint64(_base(np.uint64(seed & 0xFFFFFFFF), np.uint64(((frame & 0xFFFFFF) << 8) | (stream & 0xFF))))
 
 
 def uniforms(seed: int, frame: int, stream: int, pixel: np.ndarray, index: np.ndarray, dims: int) -> np.ndarray:
@@ -65,12 +54,17 @@ def uniforms(seed: int, frame: int, stream: int, pixel: np.ndarray, index: np.nd
 
 @njit(cache=True, nogil=True, inline="always")
 def _mix(x):
-    """``_mix64`` of one uint64."""
+    """SplitMix64 / MurmurHash3 finaliser of one uint64 (wrapping arithmetic is intended)."""
     x = x ^ (x >> np.uint64(30))
     x = x * np.uint64(0xBF58476D1CE4E5B9)
     x = x ^ (x >> np.uint64(27))
     x = x * np.uint64(0x94D049BB133111EB)
     return x ^ (x >> np.uint64(31))
+
+
+@njit(cache=True, nogil=True)
+def _base(seed, tag):
+    return _mix(seed * np.uint64(0x9E3779B97F4A7C15) + tag)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -186,4 +180,4 @@ def compile_rng() -> tuple:
     """Compile the kernels (or load them from Numba's cache); returns them."""
     uniforms(0, 0, 0, np.zeros(1, np.int64), np.zeros(1, np.int64), 2)
     sobol_2d(0, 0, 0, np.zeros(1, np.int64), np.zeros(1, np.int64))
-    return _uniforms, _sobol_2d
+    return _base, _uniforms, _sobol_2d
