@@ -47,6 +47,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from numba import njit
 
 DATA_DIR = Path(__file__).resolve().parent / "data"
 ALBEDO_TABLE_PATH = DATA_DIR / "ggx_albedo.npz"
@@ -303,29 +304,42 @@ def lookup_table(table: np.ndarray, *coordinates) -> np.ndarray:
 
     table : (n_d, ..., n_1) array, the last axis indexed by the *first* coordinate (Cycles' x).
     coordinates : d arrays of equal shape, clamped to [0, 1]; node i of an axis of size n sits at i / (n - 1).
+
+    Compiled (the 2^d corners' weights and sum in the order numpy took them, so the same numbers): as numpy
+    passes per corner it was the glossy sample's largest numpy cost (678 small lookups at 256 px).
     """
     coordinates = [np.clip(np.asarray(c, dtype=np.float64), 0.0, 1.0) for c in coordinates]
     shape = np.broadcast(*coordinates).shape
-    coordinates = [np.broadcast_to(c, shape).ravel() for c in coordinates]
-    dims = len(coordinates)
-    lower, frac = [], []
-    for axis, coord in enumerate(coordinates):  # a handful of table axes
-        size = table.shape[dims - 1 - axis]
-        position = coord * (size - 1)
-        index = np.minimum(position.astype(np.int64), size - 1)
-        lower.append(index)
-        frac.append(position - index)
-    result = np.zeros(len(coordinates[0]))
-    for corner in range(1 << dims):  # 2^d corners
-        weight = np.ones_like(result)
-        index = []
+    stacked = np.stack([np.broadcast_to(c, shape).ravel() for c in coordinates], axis=1)
+    sizes = np.asarray(table.shape[::-1], dtype=np.int64)        # per coordinate, the axis it indexes
+    out = np.empty(len(stacked))
+    _lookup(np.ascontiguousarray(table, dtype=np.float64).ravel(), sizes, stacked, out)
+    return out.reshape(shape)
+
+
+@njit(cache=True, nogil=True)
+def _lookup(flat, sizes, coordinates, out):
+    """``lookup_table`` on the C-order ``flat`` table: coordinate a indexes the axis of size sizes[a], whose
+    stride is the product of the sizes before it."""
+    dims = len(sizes)
+    lower = np.empty(dims, np.int64)
+    frac = np.empty(dims)
+    for n in range(len(out)):
         for axis in range(dims):
-            up = (corner >> axis) & 1
-            size = table.shape[dims - 1 - axis]
-            index.append(np.minimum(lower[axis] + up, size - 1))
-            weight = weight * (frac[axis] if up else 1.0 - frac[axis])
-        result += weight * table[tuple(reversed(index))]
-    return result.reshape(shape)
+            position = coordinates[n, axis] * (sizes[axis] - 1)
+            lower[axis] = min(np.int64(position), sizes[axis] - 1)
+            frac[axis] = position - lower[axis]
+        result = 0.0
+        for corner in range(1 << dims):  # 2^d corners
+            weight = 1.0
+            index, stride = 0, 1
+            for axis in range(dims):
+                up = (corner >> axis) & 1
+                index += min(lower[axis] + up, sizes[axis] - 1) * stride
+                stride *= sizes[axis]
+                weight = weight * (frac[axis] if up else 1.0 - frac[axis])
+            result += weight * flat[index]
+        out[n] = result
 
 
 def single_scatter_albedo(roughness, cos_view) -> np.ndarray:
@@ -543,3 +557,9 @@ def principled_bsdf(wi, wo, normal, roughness, base_colour, metallic=0.0, ior=1.
     diffuse = diffuse * principled_diffuse_weight(roughness, cos_o, specular)[:, None]
     dielectric = ggx_brdf(wi, wo, normal, roughness, specular) + diffuse
     return metallic * ggx_brdf(wi, wo, normal, roughness, metal) + (1.0 - metallic) * dielectric
+
+
+def compile_ggx() -> tuple:
+    """Compile the table lookup (or load it from Numba's cache); returns it."""
+    lookup_table(np.zeros((2, 2)), np.zeros(1), np.zeros(1))
+    return (_lookup,)

@@ -50,6 +50,7 @@ from .detection import (HULL_BASE, HULL_BOX_HIGH, HULL_BOX_LOW, HULL_EPS, HULL_H
 from .edge_tree import LEAF_EDGES, MeshEdges, _morton, compile_edge_tree
 from .geometry import (_REFERENCE_WEIGHTS, PLANE_EPS, LightFrames, ReceiverLight, _reference_points,
                        compile_geometry, polygon_bounds, reference_points, trim)
+from .ggx import compile_ggx
 from .illumination import compile_illumination
 from .regions import compile_regions, couple_regions
 from .rng import compile_rng
@@ -253,7 +254,7 @@ def compile_kernels() -> bool:
                           np.zeros((1, 2)), three, three, np.empty((1, 3, 2)))
     kernels = (detection_module._detect, *compile_regions(), arrangement_module._fans,
                arrangement_module._jumps, _cone_planes, _bounding_cones, _reference_points, _hull_rows,
-               *compile_edge_tree(), *compile_rng(), *compile_illumination(), _fan_triangles_kernel, *compile_geometry(), *compile_terminator(),
+               *compile_edge_tree(), *compile_rng(), *compile_illumination(), *compile_ggx(), _fan_triangles_kernel, *compile_geometry(), *compile_terminator(),
                *compile_facing(), *compile_emitters())
     return any(kernel.stats.cache_misses for kernel in kernels)
 
