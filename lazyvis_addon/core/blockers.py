@@ -138,7 +138,6 @@ def _quad_vertices(tri_a: np.ndarray, tri_b: np.ndarray) -> np.ndarray:
 
 
 def _coplanar_convex(tri_a, tri_b, edge_a, edge_b) -> np.ndarray:
-    rows = np.arange(len(tri_a))
     normal_a = np.cross(tri_a[:, 1] - tri_a[:, 0], tri_a[:, 2] - tri_a[:, 0])
     normal_b = np.cross(tri_b[:, 1] - tri_b[:, 0], tri_b[:, 2] - tri_b[:, 0])
     na = normal_a / np.linalg.norm(normal_a, axis=1, keepdims=True)
