@@ -29,6 +29,13 @@ SPLIT_SLACK = 1e-6
 # Pieces shorter than this (in their carrier's parameter) are rounding, not pieces.
 MIN_PIECE = 1e-14
 
+# An arc is not split this close to its own ends (in its parameter, where they lie inside the light): the
+# arcs crossing it there are those that share the end (the next edges of a silhouette chain, a leaf's
+# rim), which cross it only by rounding (at 1e-17 .. 1e-13 on the tree sample; real crossings lay beyond
+# 1e-2). Such a split cut off a sliver whose depth was walked from R afresh and came out negative, and it
+# broke the carry of the depth along the arc. A piece missed this way is at most a 1e-9 sliver.
+ENDPOINT_SLIVER = 1e-9
+
 # A crossing is clean when it lies this far inside the arc that makes it (relative, about radians) and
 # that arc's plane is this far from containing the carrier: then D changes there by the arc's jump, and
 # the next piece's depth follows from the last one's. Elsewhere (an arc ending on the carrier, an arc
@@ -257,9 +264,17 @@ def _breakpoints(seg_start, seg_end, low, high, skip, first, n, start, end, norm
     all lie inside its 0 .. 1; an arc's may fall outside its cone range.)"""
     s = _split(seg_start, seg_end, first, n, start, end, normal, lengths, skip, splits, split_arc, split_clean, va, vb,
                point, candidates)
+    # An arc's own ends: no split within ENDPOINT_SLIVER of them (the light's edges keep every crossing: a
+    # depth carried over a light's vertex relies on them).
+    above, below = low, high
+    if skip >= 0:
+        if low == 0.0:
+            above = ENDPOINT_SLIVER
+        if high == 1.0:
+            below = 1.0 - ENDPOINT_SLIVER
     kept = 0
     for q in range(s):
-        if splits[q] > low and splits[q] < high:
+        if splits[q] > above and splits[q] < below:
             splits[kept], split_arc[kept], split_clean[kept] = splits[q], split_arc[q], split_clean[q]
             kept += 1
     splits[kept], split_arc[kept], split_clean[kept] = low, -1, False
