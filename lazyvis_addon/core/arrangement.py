@@ -31,8 +31,8 @@ MIN_PIECE = 1e-14
 
 # An arc is not split this close to its own ends (in its parameter, where they lie inside the light): the
 # arcs crossing it there are those that share the end (the next edges of a silhouette chain, a leaf's
-# rim), which cross it only by rounding (at 1e-17 .. 1e-13 on the tree sample; real crossings lay beyond
-# 1e-2). Such a split cut off a sliver whose depth was walked from R afresh and came out negative, and it
+# rim), which cross it only by rounding (at 1e-17 .. 1e-13 on 60 of the tree sample's couples at 64 px,
+# where the other crossings lay beyond 1e-2). Such a split cut off a sliver whose depth was walked from R afresh and came out negative, and it
 # broke the carry of the depth along the arc. A piece missed this way is at most a 1e-9 sliver.
 ENDPOINT_SLIVER = 1e-9
 
