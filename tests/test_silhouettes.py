@@ -437,8 +437,8 @@ def test_a_repeated_vertex_of_a_clipped_polygon_adds_no_plane_to_its_cone():
     np.testing.assert_allclose(planes[0][valid[0]], clean_planes[0][clean_valid[0]], atol=1e-12)
     start, end = np.array([-1.0, 0.1, 1.0]), np.array([1.0, 0.2, 1.0])
     cross = np.cross(start, end)
-    expected = _cone_range(start, end, cross, clean_planes[0], clean_valid[0], 0.0, 0.0, 1.0)
-    got = _cone_range(start, end, cross, planes[0], valid[0], 0.0, 0.0, 1.0)
+    expected = _cone_range(*start, *end, *cross, clean_planes, clean_valid, 0, 0.0, 0.0, 1.0)
+    got = _cone_range(*start, *end, *cross, planes, valid, 0, 0.0, 0.0, 1.0)
     assert got[2] and expected[2]
     np.testing.assert_allclose(got[:2], expected[:2], atol=1e-12)
 

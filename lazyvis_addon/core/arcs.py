@@ -51,28 +51,32 @@ def couple_table(position: np.ndarray, own_triangle: np.ndarray, light: np.ndarr
 
 
 @njit(cache=True, nogil=True, inline="always")
-def jump_at(couple, r, edge_start, third, triangle, cut_light, face_normal, face_offset, face_size, part_of):
-    """The change of depth complexity across edge record ``r``'s arc as the receiver of ``couple`` (a row of
-    a couple table) sees it, up to its sign: the sum over the edge's faces (not the receiver's own, nor
-    those of the emitter hull the couple's light excludes: ``part_of`` (T,) int64, the hull of each
+def jump_at(rows, c, r, edge_start, third, triangle, cut_light, face_normal, face_offset, face_size, part_of):
+    """The change of depth complexity across edge record ``r``'s arc as the receiver of couple ``c`` (a row
+    of the couple table ``rows``) sees it, up to its sign: the sum over the edge's faces (not the receiver's
+    own, nor those of the emitter hull the couple's light excludes: ``part_of`` (T,) int64, the hull of each
     triangle) of the side of the plane through the receiver and the edge that the face's third vertex lies
     on, sign(m . (a - x)) with the face's normal m = (b - a) x (c - a). 0 for an edge between two faces seen
-    from one side: no arc. Records as ``edge_tree.MeshEdges`` holds them."""
-    excluded = couple[COUPLE_EXCLUDED]
-    x0, x1, x2 = couple[COUPLE_POSITION], couple[COUPLE_POSITION + 1], couple[COUPLE_POSITION + 2]
+    from one side: no arc. Records as ``edge_tree.MeshEdges`` holds them.
+
+    The kernels here and in ``detection`` take whole arrays and row indices, never row views: in Numba a
+    view (or an array handed to an inlined function) costs an atomic reference count increment and
+    decrement, which took two thirds of detection's time (the tree at 256 px, profiled with perf)."""
+    excluded = rows[c, COUPLE_EXCLUDED]
+    x0, x1, x2 = rows[c, COUPLE_POSITION], rows[c, COUPLE_POSITION + 1], rows[c, COUPLE_POSITION + 2]
     reach = max(abs(edge_start[r, 0] - x0), abs(edge_start[r, 1] - x1), abs(edge_start[r, 2] - x2))
     total = 0.0
     for f in range(face_normal.shape[1]):
         value = face_offset[r, f] - (face_normal[r, f, 0] * x0 + face_normal[r, f, 1] * x1 + face_normal[r, f, 2] * x2)
         if not abs(value) > SIGN_EPS * face_size[r, f] * reach:
             continue
-        if triangle[r, f] == couple[COUPLE_OWN]:
+        if triangle[r, f] == rows[c, COUPLE_OWN]:
             continue
         if excluded >= 0 and triangle[r, f] >= 0 and part_of[triangle[r, f]] == excluded:
             continue
         if cut_light[r] >= 0:  # a cut segment's vertex behind the light (from the receiver's side) counts 0
-            away = third[r, f, 0] * couple[COUPLE_TOWARD] + third[r, f, 1] * couple[COUPLE_TOWARD + 1] + \
-                third[r, f, 2] * couple[COUPLE_TOWARD + 2] - couple[COUPLE_OFFSET]
+            away = third[r, f, 0] * rows[c, COUPLE_TOWARD] + third[r, f, 1] * rows[c, COUPLE_TOWARD + 1] + \
+                third[r, f, 2] * rows[c, COUPLE_TOWARD + 2] - rows[c, COUPLE_OFFSET]
             if not away > 0:
                 continue
         total += 1.0 if value > 0 else -1.0
@@ -80,107 +84,91 @@ def jump_at(couple, r, edge_start, third, triangle, cut_light, face_normal, face
 
 
 @njit(cache=True, nogil=True, inline="always")
-def arc_test(couple, cone, cone_valid, r, total, cut, edge_start, edge_end, scratch, out_start, out_end, out_normal,
+def arc_test(rows, c, cones, cone_valid, r, total, cut, edge_start, edge_end, out_start, out_end, out_normal,
              out_enter, out_leave, out_jump, m):
     """Whether edge record ``r`` (start, end (E, 3)), whose ``jump_at`` is ``total`` (not 0), is an arc
-    crossing the light of ``couple`` (a row of a couple table; cone (V, 3) inward unit normals of the planes
-    through the receiver and its clipped light's edges, cone_valid (V,)); if so it is written to row ``m``
-    of the outputs. ``cut``: the record is a cut segment of this couple's light, which lies in the light's
-    plane by construction (no front part to clip: it bounds the front part of its triangle where that
-    triangle pierces the light). scratch: (4, 3).
+    crossing the light of couple ``c`` (``rows``: the couple table; cones (Nc, V, 3) inward unit normals of
+    the planes through the receiver and its clipped light's edges, cone_valid (Nc, V)); if so it is written
+    to row ``m`` of the outputs. ``cut``: the record is a cut segment of this couple's light, which lies in
+    the light's plane by construction (no front part to clip: it bounds the front part of its triangle
+    where that triangle pierces the light).
     Outputs: start, end, normal (S, 3) directions from the receiver (normal = start x end), enter, leave
     (S,) the range inside the cone (0 <= enter < leave <= 1), jump (S,) int64 (change of D crossing the arc
     from R's side to the other).
     """
-    a, b, cross = scratch[0], scratch[1], scratch[3]
-    for k in range(3):
-        a[k] = edge_start[r, k] - couple[COUPLE_POSITION + k]
-        b[k] = edge_end[r, k] - couple[COUPLE_POSITION + k]
-    _cross(a, b, cross)
-    reference_side = cross[0] * couple[COUPLE_REFERENCE] + cross[1] * couple[COUPLE_REFERENCE + 1] + \
-        cross[2] * couple[COUPLE_REFERENCE + 2]
+    x0, x1, x2 = rows[c, COUPLE_POSITION], rows[c, COUPLE_POSITION + 1], rows[c, COUPLE_POSITION + 2]
+    a0, a1, a2 = edge_start[r, 0] - x0, edge_start[r, 1] - x1, edge_start[r, 2] - x2
+    b0, b1, b2 = edge_end[r, 0] - x0, edge_end[r, 1] - x1, edge_end[r, 2] - x2
+    n0, n1, n2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+    reference_side = n0 * rows[c, COUPLE_REFERENCE] + n1 * rows[c, COUPLE_REFERENCE + 1] + \
+        n2 * rows[c, COUPLE_REFERENCE + 2]
     jump = -(1.0 if reference_side >= 0 else -1.0) * total
     # Front part: height above the light's plane (on the receiver's side) > eps.
-    height_a = -couple[COUPLE_OFFSET]
-    height_b = -couple[COUPLE_OFFSET]
+    height_a = -rows[c, COUPLE_OFFSET]
+    height_b = -rows[c, COUPLE_OFFSET]
     for k in range(3):
-        height_a += edge_start[r, k] * couple[COUPLE_TOWARD + k]
-        height_b += edge_end[r, k] * couple[COUPLE_TOWARD + k]
-    scale = couple[COUPLE_SIZE] + max(abs(a[0]), abs(a[1]), abs(a[2])) + max(abs(b[0]), abs(b[1]), abs(b[2]))
+        height_a += edge_start[r, k] * rows[c, COUPLE_TOWARD + k]
+        height_b += edge_end[r, k] * rows[c, COUPLE_TOWARD + k]
+    scale = rows[c, COUPLE_SIZE] + max(abs(a0), abs(a1), abs(a2)) + max(abs(b0), abs(b1), abs(b2))
     eps = PLANE_EPS * scale
     front_a, front_b = (True, True) if cut else (height_a > eps, height_b > eps)
-    if not (front_a or front_b):
-        return False
     if front_a != front_b:
         t_plane = (height_a - eps) / (height_a - height_b)
-        for k in range(3):
-            cut = a[k] + t_plane * (b[k] - a[k])
-            if front_a:
-                b[k] = cut
-            else:
-                a[k] = cut
+        p0, p1, p2 = a0 + t_plane * (b0 - a0), a1 + t_plane * (b1 - a1), a2 + t_plane * (b2 - a2)
+        if front_a:
+            b0, b1, b2 = p0, p1, p2
+        else:
+            a0, a1, a2 = p0, p1, p2
     # Quick rejection by the light's bounding quad: both ends beyond one of its cone's planes.
+    beyond = False
     for v in range(4):
         plane = COUPLE_BOUND + 3 * v
-        va = couple[plane] * a[0] + couple[plane + 1] * a[1] + couple[plane + 2] * a[2]
-        vb = couple[plane] * b[0] + couple[plane + 1] * b[1] + couple[plane + 2] * b[2]
-        if va < 0 and vb < 0:
-            return False
-    _cross(a, b, cross)
-    enter, leave, inside = _cone_range(a, b, cross, cone, cone_valid, -couple[COUPLE_TOWARD],
-                                       -couple[COUPLE_TOWARD + 1], -couple[COUPLE_TOWARD + 2])
-    if not inside:
-        return False
-    for k in range(3):
-        out_start[m, k] = a[k]
-        out_end[m, k] = b[k]
-        out_normal[m, k] = cross[k]
-    out_enter[m], out_leave[m], out_jump[m] = enter, leave, np.int64(jump)
-    return True
+        va = rows[c, plane] * a0 + rows[c, plane + 1] * a1 + rows[c, plane + 2] * a2
+        vb = rows[c, plane] * b0 + rows[c, plane + 1] * b1 + rows[c, plane + 2] * b2
+        beyond |= va < 0 and vb < 0
+    # One exit (no return inside): see ``jump_at``.
+    inside = False
+    if (front_a or front_b) and not beyond:
+        n0, n1, n2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+        enter, leave, inside = _cone_range(a0, a1, a2, b0, b1, b2, n0, n1, n2, cones, cone_valid, c,
+                                           -rows[c, COUPLE_TOWARD], -rows[c, COUPLE_TOWARD + 1],
+                                           -rows[c, COUPLE_TOWARD + 2])
+        if inside:
+            out_start[m, 0], out_start[m, 1], out_start[m, 2] = a0, a1, a2
+            out_end[m, 0], out_end[m, 1], out_end[m, 2] = b0, b1, b2
+            out_normal[m, 0], out_normal[m, 1], out_normal[m, 2] = n0, n1, n2
+            out_enter[m], out_leave[m], out_jump[m] = enter, leave, np.int64(jump)
+    return inside
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _cone_range(a, b, cross, planes, valid, toward_x, toward_y, toward_z):
-    """The parameter range enter .. leave of the segment a -> b (3,) inside a cone (unit inward planes
-    (V, 3), ``valid`` (V,)) that opens towards ``toward``, and whether a range of positive length remains.
-    ``cross`` = a x b."""
-    length = max(np.sqrt(cross[0] * cross[0] + cross[1] * cross[1] + cross[2] * cross[2]), 1e-300)
+def _cone_range(a0, a1, a2, b0, b1, b2, x0, x1, x2, planes, valid, row, toward_x, toward_y, toward_z):
+    """The parameter range enter .. leave of the segment a -> b inside a cone (unit inward planes
+    planes[row] (V, 3) of (N, V, 3), valid[row] (V,)) that opens towards ``toward``, and whether a range of
+    positive length remains. (x0, x1, x2) = a x b."""
+    length = max(np.sqrt(x0 * x0 + x1 * x1 + x2 * x2), 1e-300)
     enter, leave = 0.0, 1.0
-    for v in range(planes.shape[0]):
-        if not valid[v]:
-            continue
-        p0, p1, p2 = planes[v, 0], planes[v, 1], planes[v, 2]
-        # An arc along the light's edge (an edge of the receiver's own face lies in the horizon that
-        # clipped the light) never crosses the inside: its jump happens on the boundary.
-        if abs((p0 * cross[0] + p1 * cross[1] + p2 * cross[2]) / length) > ON_BOUNDARY:
-            return enter, leave, False
-        va = p0 * a[0] + p1 * a[1] + p2 * a[2]
-        vb = p0 * b[0] + p1 * b[1] + p2 * b[2]
-        if va <= 0 and vb <= 0:
-            return enter, leave, False
-        if va < 0 and vb > 0:
-            enter = max(enter, va / (va - vb))
-        elif va > 0 and vb < 0:
-            leave = min(leave, va / (va - vb))
-    if not leave > enter + 1e-12:
-        return enter, leave, False
+    outside = False  # one exit, after the loop (see ``arc_test``)
+    for v in range(planes.shape[1]):
+        p0, p1, p2 = planes[row, v, 0], planes[row, v, 1], planes[row, v, 2]
+        va = p0 * a0 + p1 * a1 + p2 * a2
+        vb = p0 * b0 + p1 * b1 + p2 * b2
+        if valid[row, v]:
+            # An arc along the light's edge (an edge of the receiver's own face lies in the horizon that
+            # clipped the light) never crosses the inside: its jump happens on the boundary.
+            outside |= abs((p0 * x0 + p1 * x1 + p2 * x2) / length) > ON_BOUNDARY or (va <= 0 and vb <= 0)
+            if va < 0 and vb > 0:
+                enter = max(enter, va / (va - vb))
+            elif va > 0 and vb < 0:
+                leave = min(leave, va / (va - vb))
     # The segment must also point towards the light: a direction on the cone's far nappe passes every
     # plane test too.
     middle = 0.5 * (enter + leave)
-    toward = (a[0] + middle * (b[0] - a[0])) * toward_x + (a[1] + middle * (b[1] - a[1])) * toward_y + \
-        (a[2] + middle * (b[2] - a[2])) * toward_z
-    if not toward > 0:
-        return enter, leave, False
-    degenerate = not (cross[0] * cross[0] + cross[1] * cross[1] + cross[2] * cross[2]
-                      > 1e-30 * (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]) * (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]))
-    return enter, leave, not degenerate
-
-
-@njit(cache=True, nogil=True)
-def _cross(a, b, out):
-    out[0] = a[1] * b[2] - a[2] * b[1]
-    out[1] = a[2] * b[0] - a[0] * b[2]
-    out[2] = a[0] * b[1] - a[1] * b[0]
+    toward = (a0 + middle * (b0 - a0)) * toward_x + (a1 + middle * (b1 - a1)) * toward_y + \
+        (a2 + middle * (b2 - a2)) * toward_z
+    degenerate = not (x0 * x0 + x1 * x1 + x2 * x2
+                      > 1e-30 * (a0 * a0 + a1 * a1 + a2 * a2) * (b0 * b0 + b1 * b1 + b2 * b2))
+    return enter, leave, not outside and leave > enter + 1e-12 and toward > 0 and not degenerate
 
 
 @dataclass

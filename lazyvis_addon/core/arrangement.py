@@ -20,6 +20,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .borrowed import borrowed
+
 # Where pieces are split, arcs count as a little longer than they are: an arc that ends on another arc
 # or on the light's edge (a silhouette chain running into the receiver's own face, which lies in the
 # horizon that clipped the light) must split it there. A split where no arc reaches is harmless: both
@@ -321,23 +323,40 @@ def _fans(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_dirs
     out_end = np.empty((capacity, 3))
     out_sign = np.empty(capacity)
     whole = np.zeros(n_couples, np.bool_)
-    inconsistent = 0
-    m = 0
-    mid, point = np.empty(3), np.empty(3)
     # Scratch for the couple with the most arcs, shared by all (allocations per couple cost as much as
     # the work of a couple with a few arcs).
     most = max(arcs_of.max(), 1) if n_couples else 1
-    ref_value = np.empty(most)
-    lengths = np.empty((most, 3))
-    splits = np.empty(most + 2)
-    split_arc = np.empty(most + 2, np.int64)
-    split_clean = np.empty(most + 2, np.bool_)
-    va, vb = np.empty(most), np.empty(most)
-    candidates = np.empty(most + 1, np.int64)
-    edge_pieces = np.empty((width * (most + 1), 2, 3))
-    edge_seen = np.empty(width * (most + 1), np.bool_)
-    seed = np.empty(most, np.int64)
-    seeded = np.empty(most, np.bool_)
+    m, inconsistent = _arrange(
+        first_arc, arcs_of, start, end, normal, enter, leave, jump, light_dirs, light_count, reference, depth,
+        out_couple, out_start, out_end, out_sign, whole, np.empty(3), np.empty(3), np.empty(most),
+        np.empty((most, 3)), np.empty(most + 2), np.empty(most + 2, np.int64), np.empty(most + 2, np.bool_),
+        np.empty(most), np.empty(most), np.empty(most + 1, np.int64), np.empty((width * (most + 1), 2, 3)),
+        np.empty(width * (most + 1), np.bool_), np.empty(most, np.int64), np.empty(most, np.bool_))
+    if inconsistent < 0:
+        return out_couple, out_start, out_end, out_sign, whole, -1
+    return out_couple[:m], out_start[:m], out_end[:m], out_sign[:m], whole, inconsistent
+
+
+@njit(cache=True, nogil=True)
+def _arrange(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_dirs, light_count, reference, depth,
+             out_couple, out_start, out_end, out_sign, whole, mid, point, ref_value, lengths, splits, split_arc,
+             split_clean, va, vb, candidates, edge_pieces, edge_seen, seed, seeded):
+    """``_fans``' work: fills its outputs (out_couple, out_start, out_end, out_sign, whole) and returns (the
+    pieces written, the inconsistent couples), or (m, -1) when the outputs are full. The rest are scratch.
+    Every argument is borrowed (``borrowed``: no reference counting in the loops; the caller owns them)."""
+    first_arc, arcs_of, start, end = borrowed(first_arc), borrowed(arcs_of), borrowed(start), borrowed(end)
+    normal, enter, leave, jump = borrowed(normal), borrowed(enter), borrowed(leave), borrowed(jump)
+    light_dirs, light_count, reference = borrowed(light_dirs), borrowed(light_count), borrowed(reference)
+    depth, out_couple, out_start, out_end = borrowed(depth), borrowed(out_couple), borrowed(out_start), borrowed(out_end)
+    out_sign, whole, mid, point = borrowed(out_sign), borrowed(whole), borrowed(mid), borrowed(point)
+    ref_value, lengths, splits = borrowed(ref_value), borrowed(lengths), borrowed(splits)
+    split_arc, split_clean, va, vb = borrowed(split_arc), borrowed(split_clean), borrowed(va), borrowed(vb)
+    candidates, edge_pieces, edge_seen = borrowed(candidates), borrowed(edge_pieces), borrowed(edge_seen)
+    seed, seeded = borrowed(seed), borrowed(seeded)
+    n_couples = len(depth)
+    capacity = len(out_couple)
+    inconsistent = 0
+    m = 0
     for c in range(n_couples):
         n, first = arcs_of[c], first_arc[c]
         ref = reference[c]
@@ -417,7 +436,7 @@ def _fans(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_dirs
                 if seen_near == (d_far <= 0):
                     continue
                 if m == capacity:
-                    return out_couple, out_start, out_end, out_sign, whole, -1
+                    return m, -1
                 for axis in range(3):
                     seg = end[i, axis] - start[i, axis]
                     out_start[m, axis] = start[i, axis] + t0 * seg
@@ -429,7 +448,7 @@ def _fans(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_dirs
             if edge_seen[q] == is_whole:
                 continue
             if m == capacity:
-                return out_couple, out_start, out_end, out_sign, whole, -1
+                return m, -1
             for axis in range(3):
                 out_start[m, axis] = edge_pieces[q, 0, axis]
                 out_end[m, axis] = edge_pieces[q, 1, axis]
@@ -438,7 +457,7 @@ def _fans(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_dirs
             m += 1
         if low < 0:
             inconsistent += 1
-    return out_couple[:m], out_start[:m], out_end[:m], out_sign[:m], whole, inconsistent
+    return m, inconsistent
 
 
 def compile_arrangement() -> None:
@@ -462,26 +481,32 @@ def jumps_between(arcs, reference: np.ndarray, region: np.ndarray, target: np.nd
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _crossing_jump(a, p, q, start, end, normal, jump, point):
+def _crossing_jump(a, p, q, start, end, normal, jump):
     """The change of D along the segment p -> q (directions) across arc ``a``, whose ``jump`` is taken from
     p's side: the jump where the segment crosses the arc strictly (its plane's values at p and q differ in
-    sign and the crossing lies inside the arc), else 0. ``point`` (3,): scratch."""
+    sign and the crossing lies inside the arc, as ``_on_arc`` with no slack), else 0."""
     at_p = _dot(normal[a], p)
     at_q = _dot(normal[a], q)
     if not _straddles(at_p, at_q):
         return 0
     s = at_p / (at_p - at_q)
-    for k in range(3):
-        point[k] = p[k] + s * (q[k] - p[k])
-    return jump[a] if _on_arc(point, start[a], end[a], normal[a], 0.0) else 0
+    x0, x1, x2 = p[0] + s * (q[0] - p[0]), p[1] + s * (q[1] - p[1]), p[2] + s * (q[2] - p[2])
+    n0, n1, n2 = normal[a, 0], normal[a, 1], normal[a, 2]
+    a0, a1, a2 = start[a, 0], start[a, 1], start[a, 2]
+    b0, b1, b2 = end[a, 0], end[a, 1], end[a, 2]
+    from_start = (a1 * x2 - a2 * x1) * n0 + (a2 * x0 - a0 * x2) * n1 + (a0 * x1 - a1 * x0) * n2
+    to_end = (x1 * b2 - x2 * b1) * n0 + (x2 * b0 - x0 * b2) * n1 + (x0 * b1 - x1 * b0) * n2
+    return jump[a] if from_start > 0.0 and to_end > 0.0 else 0
 
 
 @njit(cache=True, nogil=True)
 def _jumps(first_arc, arcs_of, start, end, normal, jump, reference, region, target):
+    first_arc, arcs_of, start, end = borrowed(first_arc), borrowed(arcs_of), borrowed(start), borrowed(end)
+    normal, jump, reference = borrowed(normal), borrowed(jump), borrowed(reference)
+    region, target = borrowed(region), borrowed(target)
     total = np.zeros(len(region), np.int64)
-    point = np.empty(3)
     for p in range(len(region)):
         r = region[p]
         for j in range(first_arc[r], first_arc[r] + arcs_of[r]):
-            total[p] += _crossing_jump(j, reference[r], target[p], start, end, normal, jump, point)
+            total[p] += _crossing_jump(j, reference[r], target[p], start, end, normal, jump)
     return total

@@ -22,6 +22,7 @@ from numba import njit
 
 from .arcs import Arcs, _cone_range, cone_of_light
 from .arrangement import _crossing_jump
+from .borrowed import borrowed
 from .geometry import LightFrames, ReceiverLight, clip_by_lines, pad_to, reference_points, trim
 
 # A couple crossed by more arcs than this is cut into a grid of cells of about CELL_TARGET arcs each (at
@@ -170,6 +171,16 @@ def _region_arcs(members, first_arc, arcs_of, region_first, grid_of, heavy_index
     the arcs of the two cells only, as just written (their jumps relative to each cell's R). Two
     side-by-side cells of a grid over a convex light form a convex region, so the segment between their
     reference points stays inside it and every arc it crosses is listed in one of the two."""
+    # Every argument borrowed (``borrowed``): no reference counting in the loops below.
+    members, first_arc, arcs_of, region_first = borrowed(members), borrowed(first_arc), borrowed(arcs_of), \
+        borrowed(region_first)
+    grid_of, heavy_index, low, step = borrowed(grid_of), borrowed(heavy_index), borrowed(low), borrowed(step)
+    cell_first, slot_region, slot_cone = borrowed(cell_first), borrowed(slot_region), borrowed(slot_cone)
+    planes, valid, cell_ref, reference = borrowed(planes), borrowed(valid), borrowed(cell_ref), borrowed(reference)
+    light, local, side, tangent = borrowed(light), borrowed(local), borrowed(side), borrowed(tangent)
+    bitangent, normal_l, start, end = borrowed(bitangent), borrowed(normal_l), borrowed(start), borrowed(end)
+    normal, enter, leave, jump = borrowed(normal), borrowed(enter), borrowed(leave), borrowed(jump)
+    carry = borrowed(carry)
     out_region = np.empty(capacity, np.int64)
     out_start = np.empty((capacity, 3))
     out_end = np.empty((capacity, 3))
@@ -177,6 +188,9 @@ def _region_arcs(members, first_arc, arcs_of, region_first, grid_of, heavy_index
     out_enter = np.empty(capacity)
     out_leave = np.empty(capacity)
     out_jump = np.empty(capacity, np.int64)
+    # Read back through borrowed names; the owned arrays (returned) stay alive to the end.
+    w_start, w_end, w_normal, w_jump = borrowed(out_start), borrowed(out_end), borrowed(out_normal), \
+        borrowed(out_jump)
     most = 1
     for r in range(len(members)):
         if grid_of[members[r]] > 0:
@@ -192,7 +206,6 @@ def _region_arcs(members, first_arc, arcs_of, region_first, grid_of, heavy_index
     sorted_arc = np.empty(most, np.int64)
     mark = np.zeros(len(start), np.int64)  # the last carry step that tested each arc (a stamp)
     stamp = 0
-    point = np.empty(3)
     m = 0
     for r in range(len(members)):
         c = members[r]
@@ -239,7 +252,8 @@ def _region_arcs(members, first_arc, arcs_of, region_first, grid_of, heavy_index
                     cone = slot_cone[slot]
                     if cone < 0:
                         continue
-                    t0, t1, ok = _cone_range(start[a], end[a], normal[a], planes[cone], valid[cone], toward0,
+                    t0, t1, ok = _cone_range(start[a, 0], start[a, 1], start[a, 2], end[a, 0], end[a, 1], end[a, 2],
+                                             normal[a, 0], normal[a, 1], normal[a, 2], planes, valid, cone, toward0,
                                              toward1, toward2)
                     if not ok:
                         continue
@@ -294,8 +308,7 @@ def _region_arcs(members, first_arc, arcs_of, region_first, grid_of, heavy_index
         ref = reference[c]
         d = 0
         for a in range(a0, a0 + n):
-            d += _crossing_jump(a, ref, cell_ref[slot_cone[cell_first[h] + root]], start, end, normal,
-                                jump, point)
+            d += _crossing_jump(a, ref, cell_ref[slot_cone[cell_first[h] + root]], start, end, normal, jump)
         carry[slot_region[cell_first[h] + root]] = d
         visited[root] = True
         queue[0] = root
@@ -328,7 +341,7 @@ def _region_arcs(members, first_arc, arcs_of, region_first, grid_of, heavy_index
                             continue
                         mark[a] = stamp
                         total += turn * _crossing_jump(base + q, cell_ref[slot_cone[here]], cell_ref[slot_cone[there]],
-                                                       out_start, out_end, out_normal, out_jump, point)
+                                                       w_start, w_end, w_normal, w_jump)
                 carry[slot_region[there]] = carry[slot_region[here]] + total
     return out_region, out_start, out_end, out_normal, out_enter, out_leave, out_jump, m
 
