@@ -17,6 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from .borrowed import borrowed
+
 from .emitters import FACING_HULL, hull_frames, hull_polygons, hull_tables
 from .facing import cap_polygons, facing_frames, spread_lines
 from .scene import LOBES_ALL, Lights
@@ -494,20 +496,34 @@ def projected_solid_angle_uv(uv: np.ndarray, count: np.ndarray, local: np.ndarra
 
 @njit(cache=True, nogil=True)
 def _projected_solid_angles_uv(uv, count, local, normal_local, out):
-    directions = np.empty((1, uv.shape[1], 3))
-    vector = np.empty((1, 3))
+    # Borrowed (``borrowed``): no reference counting per polygon; the vertices are read in place, as the
+    # directions (u - u_x, v - v_x, -height) ``_irradiance_vectors`` sums over, in its order of operations.
+    uv, count, local, normal_local, out = borrowed(uv), borrowed(count), borrowed(local), borrowed(normal_local), \
+        borrowed(out)
     for n in range(uv.shape[0]):
         k_count = min(count[n], uv.shape[1])
         if k_count < 3:
             out[n] = 0.0
             continue
+        height = -local[n, 2]
+        total0, total1, total2 = 0.0, 0.0, 0.0
         for k in range(k_count):
-            directions[0, k, 0] = uv[n, k, 0] - local[n, 0]
-            directions[0, k, 1] = uv[n, k, 1] - local[n, 1]
-            directions[0, k, 2] = -local[n, 2]
-        _irradiance_vectors(directions[:, :k_count], vector)
-        out[n] = abs(vector[0, 0] * normal_local[n, 0] + vector[0, 1] * normal_local[n, 1]
-                     + vector[0, 2] * normal_local[n, 2])
+            j = k + 1 if k + 1 < k_count else 0
+            a0, a1, a2 = uv[n, k, 0] - local[n, 0], uv[n, k, 1] - local[n, 1], height
+            b0, b1, b2 = uv[n, j, 0] - local[n, 0], uv[n, j, 1] - local[n, 1], height
+            length_a = max(np.sqrt(a0 * a0 + a1 * a1 + a2 * a2), 1e-300)
+            length_b = max(np.sqrt(b0 * b0 + b1 * b1 + b2 * b2), 1e-300)
+            a0, a1, a2 = a0 / length_a, a1 / length_a, a2 / length_a
+            b0, b1, b2 = b0 / length_b, b1 / length_b, b2 / length_b
+            c0, c1, c2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+            sin = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+            cos = a0 * b0 + a1 * b1 + a2 * b2
+            ratio = np.arctan2(sin, cos) / sin if sin > 1e-15 else 1.0
+            total0 += c0 * ratio
+            total1 += c1 * ratio
+            total2 += c2 * ratio
+        out[n] = abs(0.5 * total0 * normal_local[n, 0] + 0.5 * total1 * normal_local[n, 1]
+                     + 0.5 * total2 * normal_local[n, 2])
 
 
 @njit(cache=True, nogil=True)
