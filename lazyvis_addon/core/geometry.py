@@ -494,6 +494,21 @@ def projected_solid_angle_uv(uv: np.ndarray, count: np.ndarray, local: np.ndarra
     return out
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _edge_vector(a0, a1, a2, b0, b1, b2):
+    """One edge's term of the irradiance vector (times 2): the unit vector of a x b times the angle between
+    the directions a and b (scalars: no arrays, so nothing to reference-count when inlined)."""
+    length_a = max(np.sqrt(a0 * a0 + a1 * a1 + a2 * a2), 1e-300)
+    length_b = max(np.sqrt(b0 * b0 + b1 * b1 + b2 * b2), 1e-300)
+    a0, a1, a2 = a0 / length_a, a1 / length_a, a2 / length_a
+    b0, b1, b2 = b0 / length_b, b1 / length_b, b2 / length_b
+    c0, c1, c2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+    sin = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+    cos = a0 * b0 + a1 * b1 + a2 * b2
+    ratio = np.arctan2(sin, cos) / sin if sin > 1e-15 else 1.0
+    return c0 * ratio, c1 * ratio, c2 * ratio
+
+
 @njit(cache=True, nogil=True)
 def _projected_solid_angles_uv(uv, count, local, normal_local, out):
     # Borrowed (``borrowed``): no reference counting per polygon; the vertices are read in place, as the
@@ -511,17 +526,10 @@ def _projected_solid_angles_uv(uv, count, local, normal_local, out):
             j = k + 1 if k + 1 < k_count else 0
             a0, a1, a2 = uv[n, k, 0] - local[n, 0], uv[n, k, 1] - local[n, 1], height
             b0, b1, b2 = uv[n, j, 0] - local[n, 0], uv[n, j, 1] - local[n, 1], height
-            length_a = max(np.sqrt(a0 * a0 + a1 * a1 + a2 * a2), 1e-300)
-            length_b = max(np.sqrt(b0 * b0 + b1 * b1 + b2 * b2), 1e-300)
-            a0, a1, a2 = a0 / length_a, a1 / length_a, a2 / length_a
-            b0, b1, b2 = b0 / length_b, b1 / length_b, b2 / length_b
-            c0, c1, c2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
-            sin = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
-            cos = a0 * b0 + a1 * b1 + a2 * b2
-            ratio = np.arctan2(sin, cos) / sin if sin > 1e-15 else 1.0
-            total0 += c0 * ratio
-            total1 += c1 * ratio
-            total2 += c2 * ratio
+            e0, e1, e2 = _edge_vector(a0, a1, a2, b0, b1, b2)
+            total0 += e0
+            total1 += e1
+            total2 += e2
         out[n] = abs(0.5 * total0 * normal_local[n, 0] + 0.5 * total1 * normal_local[n, 1]
                      + 0.5 * total2 * normal_local[n, 2])
 
@@ -538,17 +546,10 @@ def _irradiance_vectors(directions, out):
             j = k + 1 if k + 1 < width else 0
             a0, a1, a2 = directions[n, k, 0], directions[n, k, 1], directions[n, k, 2]
             b0, b1, b2 = directions[n, j, 0], directions[n, j, 1], directions[n, j, 2]
-            length_a = max(np.sqrt(a0 * a0 + a1 * a1 + a2 * a2), 1e-300)
-            length_b = max(np.sqrt(b0 * b0 + b1 * b1 + b2 * b2), 1e-300)
-            a0, a1, a2 = a0 / length_a, a1 / length_a, a2 / length_a
-            b0, b1, b2 = b0 / length_b, b1 / length_b, b2 / length_b
-            c0, c1, c2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
-            sin = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
-            cos = a0 * b0 + a1 * b1 + a2 * b2
-            ratio = np.arctan2(sin, cos) / sin if sin > 1e-15 else 1.0
-            total0 += c0 * ratio
-            total1 += c1 * ratio
-            total2 += c2 * ratio
+            e0, e1, e2 = _edge_vector(a0, a1, a2, b0, b1, b2)
+            total0 += e0
+            total1 += e1
+            total2 += e2
         out[n, 0], out[n, 1], out[n, 2] = 0.5 * total0, 0.5 * total1, 0.5 * total2
 
 
