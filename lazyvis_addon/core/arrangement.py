@@ -125,15 +125,28 @@ def _on_arc(point, start, end, normal, slack):
         (_cross_dot(point, end, normal) > -slack * size * _norm(end))
 
 
+# Rows of a couple's arcs in ``columns`` (12, n): the coordinates of start, end and normal, then the lengths of
+# the three; one arc per column, so the loops over a couple's arcs read consecutive memory and LLVM
+# vectorizes them.
+START_X, END_X, NORMAL_X, START_LENGTH, END_LENGTH, NORMAL_LENGTH = 0, 3, 6, 9, 10, 11
+COLUMN_ROWS = 12
+
+
 @njit(cache=True, nogil=True, inline="always")
-def _one_side(c0, c1, c2, margin, start, end, j, length_start, length_end):
-    """Both ends of arc j lie on one side of the plane of normal (c0, c1, c2), farther from it than
-    ``margin`` times their lengths (for a unit direction and margin * |c| that is about an angle), as a
-    branch-free bool."""
-    at_start = c0 * start[j, 0] + c1 * start[j, 1] + c2 * start[j, 2]
-    at_end = c0 * end[j, 0] + c1 * end[j, 1] + c2 * end[j, 2]
-    reach_start, reach_end = margin * length_start, margin * length_end
+def _one_side(c0, c1, c2, margin, columns, jj):
+    """Both ends of the couple's arc jj (``columns``) lie on one side of the plane of normal (c0, c1, c2),
+    farther from it than ``margin`` times their lengths (for a unit direction and margin * |c| that is
+    about an angle), as a branch-free bool."""
+    at_start = c0 * columns[START_X, jj] + c1 * columns[START_X + 1, jj] + c2 * columns[START_X + 2, jj]
+    at_end = c0 * columns[END_X, jj] + c1 * columns[END_X + 1, jj] + c2 * columns[END_X + 2, jj]
+    reach_start, reach_end = margin * columns[START_LENGTH, jj], margin * columns[END_LENGTH, jj]
     return ((at_start > reach_start) & (at_end > reach_end)) | ((at_start < -reach_start) & (at_end < -reach_end))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _plane_value(columns, jj, p0, p1, p2):
+    """The plane of the couple's arc jj at the direction (p0, p1, p2)."""
+    return columns[NORMAL_X, jj] * p0 + columns[NORMAL_X + 1, jj] * p1 + columns[NORMAL_X + 2, jj] * p2
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -160,14 +173,25 @@ def _straddles(va, vb):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _split(seg_start, seg_end, first, n, start, end, normal, lengths, skip, splits, split_arc, split_clean, va, vb,
+def _compact(candidates, n):
+    """The indices jj < n where ``candidates[jj]`` (0 or 1) is 1, moved to the front in place; their count."""
+    count = 0
+    for jj in range(n):
+        keep = candidates[jj]
+        candidates[count] = jj
+        count += keep
+    return count
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _split(seg_start, seg_end, first, n, start, end, normal, columns, skip, splits, split_arc, split_clean, va, vb,
            point, candidates):
     """Parameters (written to ``splits``, returned count) where arcs first .. first + n - 1 (not ``skip``)
     cross the segment seg_start -> seg_end, with SPLIT_SLACK (as ``_on_arc``), the arc of each
-    (``split_arc``) and whether the crossing is clean (``split_clean``, see CLEAN_MARGIN). ``lengths``
-    (n, 3): |start|, |end|, |normal| of each arc. Also leaves each arc's plane's values at the segment's
-    ends in ``va``, ``vb`` (n,), for ``_near_depth``; ``point`` (3,) and ``candidates`` (n + 1,) int64 are
-    scratch."""
+    (``split_arc``) and whether the crossing is clean (``split_clean``, see CLEAN_MARGIN). ``columns``
+    (COLUMN_ROWS, n): the couple's arcs, one per column. Also leaves each arc's plane's values at the
+    segment's ends in ``va``, ``vb`` (n,), for ``_near_depth``; ``point`` (3,) and ``candidates`` (n + 1,)
+    int64 are scratch."""
     count = 0
     reach = _norm(seg_start) + _norm(seg_end)
     a0, a1, a2 = seg_start[0], seg_start[1], seg_start[2]
@@ -179,43 +203,44 @@ def _split(seg_start, seg_end, first, n, start, end, normal, lengths, skip, spli
     c0, c1, c2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
     margin = 2.0 * SPLIT_SLACK * np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
     # The planes' values at both ends, and the arcs whose plane separates them while the carrier's plane
-    # may separate theirs, without a branch per arc (which side is data, so a branch would be
-    # mispredicted often).
-    crossing = 0
+    # may separate theirs: one pass without a branch (which side is data, so a branch would be mispredicted
+    # often) that LLVM vectorizes, then the few candidates gathered.
     for jj in range(n):
-        j = first + jj
-        x = normal[j, 0] * a0 + normal[j, 1] * a1 + normal[j, 2] * a2
-        y = normal[j, 0] * b0 + normal[j, 1] * b1 + normal[j, 2] * b2
+        x = _plane_value(columns, jj, a0, a1, a2)
+        y = _plane_value(columns, jj, b0, b1, b2)
         va[jj] = x
         vb[jj] = y
-        apart = _one_side(c0, c1, c2, margin, start, end, j, lengths[jj, 0], lengths[jj, 1])
-        candidates[crossing] = jj
-        crossing += ((x < 0.0) ^ (y < 0.0)) & (x != 0.0) & (y != 0.0) & (j != skip) & ~apart
+        apart = _one_side(c0, c1, c2, margin, columns, jj)
+        candidates[jj] = ((x < 0.0) ^ (y < 0.0)) & (x != 0.0) & (y != 0.0) & ~apart
+    if skip >= first:
+        candidates[skip - first] = 0
+    crossing = _compact(candidates, n)
     for c in range(crossing):
-        j = first + candidates[c]
-        t = va[j - first] / (va[j - first] - vb[j - first])
+        jj = candidates[c]
+        j = first + jj
+        t = va[jj] / (va[jj] - vb[jj])
         for k in range(3):
             point[k] = seg_start[k] + t * (seg_end[k] - seg_start[k])
         from_start, to_end = _cross_dot(start[j], point, normal[j]), _cross_dot(point, end[j], normal[j])
-        size = _norm(point) * lengths[j - first, 2]
-        if from_start > -SPLIT_SLACK * size * lengths[j - first, 0] and \
-                to_end > -SPLIT_SLACK * size * lengths[j - first, 1]:
+        size = _norm(point) * columns[NORMAL_LENGTH, jj]
+        if from_start > -SPLIT_SLACK * size * columns[START_LENGTH, jj] and \
+                to_end > -SPLIT_SLACK * size * columns[END_LENGTH, jj]:
             splits[count] = t
             split_arc[count] = j
-            split_clean[count] = from_start > CLEAN_MARGIN * size * lengths[j - first, 0] and \
-                to_end > CLEAN_MARGIN * size * lengths[j - first, 1] and \
-                abs(va[j - first]) + abs(vb[j - first]) > CLEAN_ANGLE * lengths[j - first, 2] * reach
+            split_clean[count] = from_start > CLEAN_MARGIN * size * columns[START_LENGTH, jj] and \
+                to_end > CLEAN_MARGIN * size * columns[END_LENGTH, jj] and \
+                abs(va[jj]) + abs(vb[jj]) > CLEAN_ANGLE * columns[NORMAL_LENGTH, jj] * reach
             count += 1
     return count
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _near_depth(seg_start, seg_end, t_mid, own, first, n, start, end, normal, lengths, jump, ref, ref_value, depth,
+def _near_depth(seg_start, seg_end, t_mid, own, first, n, start, end, normal, columns, jump, ref, ref_value, depth,
                 va, vb, mid, point, candidates):
     """D on the reference side of a piece: D(R) plus the jumps of the arcs (not ``own``) that the arc from
     R to the piece's midpoint crosses; which side of an arc's plane the midpoint lies on is interpolated
     from the carrier's end values ``va``, ``vb`` (n,) (``_split``'s). ``mid``, ``point`` (3,) and
-    ``candidates`` (n + 1,) int64: scratch; ``lengths`` as ``_split``'s."""
+    ``candidates`` (n + 1,) int64: scratch; ``columns`` as ``_split``'s."""
     for k in range(3):
         mid[k] = seg_start[k] + t_mid * (seg_end[k] - seg_start[k])
     d = depth
@@ -225,19 +250,19 @@ def _near_depth(seg_start, seg_end, t_mid, own, first, n, start, end, normal, le
     c1 = ref[2] * mid[0] - ref[0] * mid[2]
     c2 = ref[0] * mid[1] - ref[1] * mid[0]
     margin = APART_ROUNDING * np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
-    crossing = 0
-    for jj in range(n):  # the planes between R and the midpoint, without a branch per arc (see _split)
+    for jj in range(n):  # the planes between R and the midpoint, vectorized as in _split
+        origin_value = ref_value[jj]
+        value = (1.0 - t_mid) * va[jj] + t_mid * vb[jj]
+        apart = _one_side(c0, c1, c2, margin, columns, jj)
+        candidates[jj] = ((origin_value < 0.0) ^ (value < 0.0)) & (origin_value != 0.0) & (value != 0.0) & ~apart
+    if own >= first:
+        candidates[own - first] = 0
+    crossing = _compact(candidates, n)
+    for c in range(crossing):
+        jj = candidates[c]
         j = first + jj
         origin_value = ref_value[jj]
         value = (1.0 - t_mid) * va[jj] + t_mid * vb[jj]
-        apart = _one_side(c0, c1, c2, margin, start, end, j, lengths[jj, 0], lengths[jj, 1])
-        candidates[crossing] = jj
-        crossing += ((origin_value < 0.0) ^ (value < 0.0)) & (origin_value != 0.0) & (value != 0.0) & \
-            (j != own) & ~apart
-    for c in range(crossing):
-        j = first + candidates[c]
-        origin_value = ref_value[j - first]
-        value = (1.0 - t_mid) * va[j - first] + t_mid * vb[j - first]
         s = origin_value / (origin_value - value)
         for k in range(3):
             point[k] = ref[k] + s * (mid[k] - ref[k])
@@ -247,24 +272,24 @@ def _near_depth(seg_start, seg_end, t_mid, own, first, n, start, end, normal, le
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _clear_of_planes(vertex, values, lengths, n):
+def _clear_of_planes(vertex, values, columns, n):
     """No arc's plane passes within CLEAN_MARGIN (about radians) of ``vertex``: ``values`` (n,) are the
-    planes' values there (``_split``'s ``va``), ``lengths[:, 2]`` their normals' lengths."""
+    planes' values there (``_split``'s ``va``), ``columns`` as ``_split``'s."""
     size = CLEAN_MARGIN * _norm(vertex)
     clear = True
     for jj in range(n):
-        clear &= abs(values[jj]) > size * lengths[jj, 2]
+        clear &= abs(values[jj]) > size * columns[NORMAL_LENGTH, jj]
     return clear
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _breakpoints(seg_start, seg_end, low, high, skip, first, n, start, end, normal, lengths, splits, split_arc,
+def _breakpoints(seg_start, seg_end, low, high, skip, first, n, start, end, normal, columns, splits, split_arc,
                  split_clean, va, vb, point, candidates):
     """The carrier seg_start -> seg_end's part low .. high cut where the arcs (not ``skip``) cross it: the
     sorted parameters low, the crossings strictly inside, high, written to ``splits`` with their arcs and
     cleanness (``_split``; -1 and False for low and high); returns their count. (A light edge's crossings
     all lie inside its 0 .. 1; an arc's may fall outside its cone range.)"""
-    s = _split(seg_start, seg_end, first, n, start, end, normal, lengths, skip, splits, split_arc, split_clean, va, vb,
+    s = _split(seg_start, seg_end, first, n, start, end, normal, columns, skip, splits, split_arc, split_clean, va, vb,
                point, candidates)
     # An arc's own ends: no split within ENDPOINT_SLIVER of them (the light's edges keep every crossing: a
     # depth carried over a light's vertex relies on them).
@@ -329,7 +354,7 @@ def _fans(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_dirs
     m, inconsistent = _arrange(
         first_arc, arcs_of, start, end, normal, enter, leave, jump, light_dirs, light_count, reference, depth,
         out_couple, out_start, out_end, out_sign, whole, np.empty(3), np.empty(3), np.empty(most),
-        np.empty((most, 3)), np.empty(most + 2), np.empty(most + 2, np.int64), np.empty(most + 2, np.bool_),
+        np.empty((COLUMN_ROWS, most)), np.empty(most + 2), np.empty(most + 2, np.int64), np.empty(most + 2, np.bool_),
         np.empty(most), np.empty(most), np.empty(most + 1, np.int64), np.empty((width * (most + 1), 2, 3)),
         np.empty(width * (most + 1), np.bool_), np.empty(most, np.int64), np.empty(most, np.bool_))
     if inconsistent < 0:
@@ -339,7 +364,7 @@ def _fans(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_dirs
 
 @njit(cache=True, nogil=True)
 def _arrange(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_dirs, light_count, reference, depth,
-             out_couple, out_start, out_end, out_sign, whole, mid, point, ref_value, lengths, splits, split_arc,
+             out_couple, out_start, out_end, out_sign, whole, mid, point, ref_value, columns, splits, split_arc,
              split_clean, va, vb, candidates, edge_pieces, edge_seen, seed, seeded):
     """``_fans``' work: fills its outputs (out_couple, out_start, out_end, out_sign, whole) and returns (the
     pieces written, the inconsistent couples), or (m, -1) when the outputs are full. The rest are scratch.
@@ -349,7 +374,7 @@ def _arrange(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_d
     light_dirs, light_count, reference = borrowed(light_dirs), borrowed(light_count), borrowed(reference)
     depth, out_couple, out_start, out_end = borrowed(depth), borrowed(out_couple), borrowed(out_start), borrowed(out_end)
     out_sign, whole, mid, point = borrowed(out_sign), borrowed(whole), borrowed(mid), borrowed(point)
-    ref_value, lengths, splits = borrowed(ref_value), borrowed(lengths), borrowed(splits)
+    ref_value, columns, splits = borrowed(ref_value), borrowed(columns), borrowed(splits)
     split_arc, split_clean, va, vb = borrowed(split_arc), borrowed(split_clean), borrowed(va), borrowed(vb)
     candidates, edge_pieces, edge_seen = borrowed(candidates), borrowed(edge_pieces), borrowed(edge_seen)
     seed, seeded = borrowed(seed), borrowed(seeded)
@@ -363,8 +388,12 @@ def _arrange(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_d
         for j in range(n):
             seeded[j] = False
             ref_value[j] = _dot(normal[first + j], ref)
-            lengths[j, 0], lengths[j, 1] = _norm(start[first + j]), _norm(end[first + j])
-            lengths[j, 2] = _norm(normal[first + j])
+            for axis in range(3):
+                columns[START_X + axis, j] = start[first + j, axis]
+                columns[END_X + axis, j] = end[first + j, axis]
+                columns[NORMAL_X + axis, j] = normal[first + j, axis]
+            columns[START_LENGTH, j], columns[END_LENGTH, j] = _norm(start[first + j]), _norm(end[first + j])
+            columns[NORMAL_LENGTH, j] = _norm(normal[first + j])
         low = 0
         # Light edge pieces first: their depths decide whether the light is whole (see below).
         count = light_count[c]
@@ -374,11 +403,11 @@ def _arrange(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_d
         for k in range(count):
             seg_start = light_dirs[c, k]
             seg_end = light_dirs[c, k + 1 if k + 1 < count else 0]
-            cuts = _breakpoints(seg_start, seg_end, 0.0, 1.0, -1, first, n, start, end, normal, lengths, splits,
+            cuts = _breakpoints(seg_start, seg_end, 0.0, 1.0, -1, first, n, start, end, normal, columns, splits,
                                 split_arc, split_clean, va, vb, point, candidates)
             # D on the inside carries over the vertex from the last edge's last piece, unless an arc's plane
             # passes near the vertex (then an arc may cross there, unseen by either edge's splits).
-            d_near, known = carried, carried_known and _clear_of_planes(seg_start, va, lengths, n)
+            d_near, known = carried, carried_known and _clear_of_planes(seg_start, va, columns, n)
             for q in range(cuts - 1):
                 t0, t1 = splits[q], splits[q + 1]
                 if q > 0:
@@ -398,7 +427,7 @@ def _arrange(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_d
                     continue
                 if not known:
                     d_near = _near_depth(seg_start, seg_end, 0.5 * (t0 + t1), -1, first, n, start, end, normal,
-                                         lengths, jump, ref, ref_value, depth[c], va, vb, mid, point, candidates)
+                                         columns, jump, ref, ref_value, depth[c], va, vb, mid, point, candidates)
                     known = True
                 low = min(low, d_near)
                 for axis in range(3):
@@ -414,7 +443,7 @@ def _arrange(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_d
         whole[c] = is_whole
         # Arc pieces: a boundary where D <= 0 on one side only.
         for i in range(first, first + n):
-            cuts = _breakpoints(start[i], end[i], enter[i], leave[i], i, first, n, start, end, normal, lengths,
+            cuts = _breakpoints(start[i], end[i], enter[i], leave[i], i, first, n, start, end, normal, columns,
                                 splits, split_arc, split_clean, va, vb, point, candidates)
             d_near, known = 0, False
             for q in range(cuts - 1):
@@ -427,7 +456,7 @@ def _arrange(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_d
                 if not t1 > t0 + MIN_PIECE:
                     continue
                 if not known:
-                    d_near = _near_depth(start[i], end[i], 0.5 * (t0 + t1), i, first, n, start, end, normal, lengths,
+                    d_near = _near_depth(start[i], end[i], 0.5 * (t0 + t1), i, first, n, start, end, normal, columns,
                                          jump, ref, ref_value, depth[c], va, vb, mid, point, candidates)
                     known = True
                 d_far = d_near + jump[i]
