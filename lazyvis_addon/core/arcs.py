@@ -223,30 +223,38 @@ DEGENERATE_EDGE = 1e-10
 
 @njit(cache=True, nogil=True)
 def _cone_planes(directions, count, planes, valid):
-    """Per polygon: the plane through vertex k and its successor (the last real vertex closes onto vertex
-    0), turned to face the polygon's centre, normalised; valid where k is a real vertex and the plane is
-    not degenerate."""
-    n_polygons, width = directions.shape[0], directions.shape[1]
-    for n in range(n_polygons):
-        last = max(count[n] - 1, 0)
-        c0, c1, c2 = 0.0, 0.0, 0.0
-        for k in range(width):
-            c0 += directions[n, k, 0]
-            c1 += directions[n, k, 1]
-            c2 += directions[n, k, 2]
-        for k in range(width):
-            j = 0 if k == last or k + 1 == width else k + 1
-            a0, a1, a2 = directions[n, k, 0], directions[n, k, 1], directions[n, k, 2]
-            b0, b1, b2 = directions[n, j, 0], directions[n, j, 1], directions[n, j, 2]
-            p0, p1, p2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
-            if p0 * c0 + p1 * c1 + p2 * c2 < 0:
-                p0, p1, p2 = -p0, -p1, -p2
-            length = np.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
-            # An edge between two vertices one direction apart (a clipped polygon's repeated vertex) has a
-            # plane of rounding noise, of any orientation: it bounds nothing, its neighbours do.
-            if not length > DEGENERATE_EDGE * np.sqrt((a0 * a0 + a1 * a1 + a2 * a2) * (b0 * b0 + b1 * b1 + b2 * b2)):
-                planes[n, k, 0], planes[n, k, 1], planes[n, k, 2] = 0.0, 0.0, 0.0
-                valid[n, k] = False
-                continue
+    """``cone_plane_row`` for every polygon."""
+    for n in range(directions.shape[0]):
+        cone_plane_row(directions, count, planes, valid, n)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def cone_plane_row(directions, count, planes, valid, n):
+    """Polygon n's planes: the plane through vertex k and its successor (the last real vertex closes onto
+    vertex 0), turned to face the polygon's centre, normalised; valid where k is a real vertex and the
+    plane is not degenerate. Detection works them out for a couple when it first tests an arc there
+    (``cone_ready``): most couples have no candidate edge, and a disk light's 64 planes cost more than
+    their tests."""
+    width = directions.shape[1]
+    last = max(count[n] - 1, 0)
+    c0, c1, c2 = 0.0, 0.0, 0.0
+    for k in range(width):
+        c0 += directions[n, k, 0]
+        c1 += directions[n, k, 1]
+        c2 += directions[n, k, 2]
+    for k in range(width):
+        j = 0 if k == last or k + 1 == width else k + 1
+        a0, a1, a2 = directions[n, k, 0], directions[n, k, 1], directions[n, k, 2]
+        b0, b1, b2 = directions[n, j, 0], directions[n, j, 1], directions[n, j, 2]
+        p0, p1, p2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+        if p0 * c0 + p1 * c1 + p2 * c2 < 0:
+            p0, p1, p2 = -p0, -p1, -p2
+        length = np.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
+        # An edge between two vertices one direction apart (a clipped polygon's repeated vertex) has a
+        # plane of rounding noise, of any orientation: it bounds nothing, its neighbours do.
+        degenerate = not length > DEGENERATE_EDGE * np.sqrt((a0 * a0 + a1 * a1 + a2 * a2) * (b0 * b0 + b1 * b1 + b2 * b2))
+        if degenerate:
+            planes[n, k, 0], planes[n, k, 1], planes[n, k, 2] = 0.0, 0.0, 0.0
+        else:
             planes[n, k, 0], planes[n, k, 1], planes[n, k, 2] = p0 / length, p1 / length, p2 / length
-            valid[n, k] = k < count[n]
+        valid[n, k] = k < count[n] and not degenerate

@@ -25,7 +25,7 @@ import numpy as np
 from numba import njit
 
 from .borrowed import borrowed
-from .arcs import COUPLE_WIDTH, SIGN_EPS, arc_test, couple_table, jump_at
+from .arcs import COUPLE_WIDTH, SIGN_EPS, arc_test, cone_plane_row, couple_table, jump_at
 
 # Columns of a hull table (``silhouettes.hull_table``), one row per receiver group or sub-group: the
 # bounding box of the receivers' box and their light, the light plane's normal towards the receivers and
@@ -37,8 +37,8 @@ HULL_WIDTH = 38
 
 
 def detect_arcs(edges, leaf_size: int, hulls: np.ndarray, query_light: np.ndarray, units: tuple, member: np.ndarray,
-                couples, frames, position: np.ndarray, own_triangle: np.ndarray, cone: np.ndarray,
-                cone_valid: np.ndarray, bound: np.ndarray, reference: np.ndarray, chunk_arcs: int):
+                couples, frames, position: np.ndarray, own_triangle: np.ndarray, light_dirs: np.ndarray,
+                bound: np.ndarray, reference: np.ndarray, chunk_arcs: int):
     """The arcs of every couple of the queries, in chunks of consecutive queries of about ``chunk_arcs``
     arcs (a generator): memory follows the chunk, not the batch (foliage's arcs per couple vary a
     thousandfold: a batch of 14,000 receivers under the tree's crown at 256 px held 3.8 million arcs).
@@ -52,8 +52,9 @@ def detect_arcs(edges, leaf_size: int, hulls: np.ndarray, query_light: np.ndarra
         query_unit, query_units : (Q,) int64   each query's sub-groups query_unit .. + query_units - 1;
         unit_hulls : (U, HULL_WIDTH)      each sub-group's receivers and light;
         unit_first, unit_size : (U,) int64    its couples ``member[first : first + size]``.
-    couples : ``ReceiverLight``; frames : ``LightFrames``; position, own_triangle, cone, cone_valid, bound,
-        reference: per couple, as ``arcs.arc_test`` takes them.
+    couples : ``ReceiverLight``; frames : ``LightFrames``; position, own_triangle, bound, reference: per
+        couple, as ``arcs.arc_test`` takes them; light_dirs (Nc, V, 3) float64: the clipped light's vertices
+        minus the receiver, whose cone (``arcs.cone_plane_row``) is worked out where an arc is first tested.
 
     Yields
     ------
@@ -76,8 +77,9 @@ def detect_arcs(edges, leaf_size: int, hulls: np.ndarray, query_light: np.ndarra
               i64(edges.part_of if edges.part_of is not None and len(edges.part_of) else np.full(1, -1)),
               f64(hulls), i64(query_light), i64(query_unit), i64(query_units), f64(unit_hulls), i64(unit_first),
               i64(unit_size), i64(member),
-              couple_table(position, own_triangle, couples.light, couples.side, frames, reference, bound), f64(cone),
-              np.ascontiguousarray(cone_valid, np.bool_))
+              couple_table(position, own_triangle, couples.light, couples.side, frames, reference, bound),
+              f64(light_dirs), i64(couples.count), np.empty(light_dirs.shape), np.empty(light_dirs.shape[:2], np.bool_),
+              np.zeros(len(light_dirs), np.bool_))
     capacity = max(chunk_arcs, 1)
     done = 0
     while done < len(hulls):  # chunks of queries
@@ -171,8 +173,10 @@ def _may_be_silhouette(edge_start, face_normal, r, cut, hulls, q):
 @njit(cache=True, nogil=True)
 def _detect(node_low, node_high, node_axis, node_spread, node_lights, lights_seen, record_low, record_high, record_light, edge_start, edge_end,
             third, triangle, face_normal, face_offset, face_size, part_of, hulls, query_light, query_unit, query_units,
-            unit_hulls, unit_first, unit_size, member, couple_rows, cone, cone_valid, n_leaves, leaf_size, q_start,
-            capacity):
+            unit_hulls, unit_first, unit_size, member, couple_rows, light_dirs, light_count, cone, cone_valid, cone_ready,
+            n_leaves, leaf_size, q_start, capacity):
+    """One chunk of ``detect_arcs``' queries from ``q_start``. ``cone``, ``cone_valid`` (Nc, V, 3), (Nc, V) are
+    filled for couple c where ``cone_ready[c]`` (set here, kept from chunk to chunk)."""
     # Every array borrowed (``borrowed``): no reference counting in the loops below, 4.7x faster.
     node_low, node_high, node_axis = borrowed(node_low), borrowed(node_high), borrowed(node_axis)
     node_spread, node_lights, lights_seen = borrowed(node_spread), borrowed(node_lights), borrowed(lights_seen)
@@ -183,6 +187,7 @@ def _detect(node_low, node_high, node_axis, node_spread, node_lights, lights_see
     query_unit, query_units, unit_hulls = borrowed(query_unit), borrowed(query_units), borrowed(unit_hulls)
     unit_first, unit_size, member = borrowed(unit_first), borrowed(unit_size), borrowed(member)
     couple_rows, cone, cone_valid = borrowed(couple_rows), borrowed(cone), borrowed(cone_valid)
+    light_dirs, light_count, cone_ready = borrowed(light_dirs), borrowed(light_count), borrowed(cone_ready)
     out_couple = np.empty(capacity, np.int64)
     out_start = np.empty((capacity, 3))
     out_end = np.empty((capacity, 3))
@@ -243,6 +248,9 @@ def _detect(node_low, node_high, node_axis, node_spread, node_lights, lights_see
                         tests += 1
                         total = jump_at(couple_rows, c, r, edge_start, third, triangle, record_light, face_normal,
                                         face_offset, face_size, part_of)
+                        if total != 0.0 and not cone_ready[c]:
+                            cone_plane_row(light_dirs, light_count, cone, cone_valid, c)
+                            cone_ready[c] = True
                         if total != 0.0 and arc_test(couple_rows, c, cone, cone_valid, r, total, cut, edge_start,
                                                      edge_end, w_start, w_end, w_normal, w_enter, w_leave, w_jump, m):
                             out_couple[m] = c
@@ -258,5 +266,5 @@ def compile_detection() -> None:
     bits = np.zeros(1, np.uint64)
     _detect(f, f, f, one, bits, bits, f, f, i, f, f, faces, np.zeros((1, 2), np.int64), faces, np.zeros((1, 2)),
             np.zeros((1, 2)), np.full(1, -1, np.int64), hull, i, i, i, hull, i, i, i,
-            np.full((1, COUPLE_WIDTH), -1.0), np.zeros((1, 3, 3)),
-            np.zeros((1, 3), np.bool_), 1, 32, 0, 16)
+            np.full((1, COUPLE_WIDTH), -1.0), np.zeros((1, 3, 3)), i, np.zeros((1, 3, 3)),
+            np.zeros((1, 3), np.bool_), np.zeros(1, np.bool_), 1, 32, 0, 16)

@@ -40,7 +40,7 @@ import numpy as np
 from numba import njit
 
 from . import arrangement as arrangement_module, detection as detection_module
-from .arcs import Arcs, _cone_planes, cone_of_light
+from .arcs import Arcs, _cone_planes
 from .arrangement import compile_arrangement, jumps_between, visible_fans
 from .emitters import compile_emitters
 from .facing import compile_facing
@@ -379,7 +379,6 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
         # the light below its plane, as Cycles' shadow rays meet it there (it skips it above).
         own = np.where((origin_shift != 0).any(axis=1), -1, own)
     light_dirs = couples.directions(frames)
-    cone, cone_valid = cone_of_light(light_dirs, couples.count)
     bound = bounding_cone(couples, frames)
     reference_uv = reference_points(couples.uv, couples.count)
     reference = couples.directions(frames, reference_uv[:, None, :], np.arange(n_couples))[:, 0]
@@ -433,7 +432,7 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
                             unit_uv_low, unit_uv_high)
     chunks = detect_arcs(edges, LEAF_EDGES, hulls, query_light, (query_unit, query_units, unit_hulls, unit_first,
                                                                  unit_size), by_query, couples, frames, position,
-                         own, cone, cone_valid, bound, reference, ARC_CHUNK)
+                         own, light_dirs, bound, reference, ARC_CHUNK)
     for (first, last), found, tests, visits in chunks:  # chunks of queries, about ARC_CHUNK arcs each
         members = np.sort(by_query[query_first[first]:query_first[last - 1] + query_size[last - 1]])
         arcs = Arcs(*found)  # in query order; gathered by couple where the regions are made
