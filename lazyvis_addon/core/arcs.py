@@ -157,6 +157,8 @@ def _cone_range(a0, a1, a2, b0, b1, b2, x0, x1, x2, planes, valid, row, toward_x
             # An arc along the light's edge (an edge of the receiver's own face lies in the horizon that
             # clipped the light) never crosses the inside: its jump happens on the boundary.
             outside |= abs((p0 * x0 + p1 * x1 + p2 * x2) / length) > ON_BOUNDARY or (va <= 0 and vb <= 0)
+            if outside:  # no range inside: the rest of the planes cannot change that
+                break
             if va < 0 and vb > 0:
                 enter = max(enter, va / (va - vb))
             elif va > 0 and vb < 0:

@@ -140,30 +140,29 @@ def _one_sided(node_axis, node_spread, node_low, node_high, node, hulls, q):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _may_be_silhouette(edge_start, face_normal, r, cut, hulls, q):
+def _may_be_silhouette(edge_start, face_normal, face_size, r, cut, hulls, q):
     """False only where edge record r's jump is 0 at every point of hull q's receiver box: each of its
     faces' planes leaves the whole box on one side (the plane's range over the box excludes 0) and those
     sides cancel. Cut segments count only their vertex in front of the light: they are kept (they are
-    few)."""
-    cuts = cut
+    few). ``face_size`` (E, K): |face_normal|."""
     reach = 0.0
     half_max = 0.0
-    for k in range(3):
-        centre = 0.5 * (hulls[q, HULL_BOX_LOW + k] + hulls[q, HULL_BOX_HIGH + k])
-        reach = max(reach, abs(edge_start[r, k] - centre))
-        half_max = max(half_max, 0.5 * (hulls[q, HULL_BOX_HIGH + k] - hulls[q, HULL_BOX_LOW + k]))
+    c0 = 0.5 * (hulls[q, HULL_BOX_LOW] + hulls[q, HULL_BOX_HIGH])
+    c1 = 0.5 * (hulls[q, HULL_BOX_LOW + 1] + hulls[q, HULL_BOX_HIGH + 1])
+    c2 = 0.5 * (hulls[q, HULL_BOX_LOW + 2] + hulls[q, HULL_BOX_HIGH + 2])
+    h0 = 0.5 * (hulls[q, HULL_BOX_HIGH] - hulls[q, HULL_BOX_LOW])
+    h1 = 0.5 * (hulls[q, HULL_BOX_HIGH + 1] - hulls[q, HULL_BOX_LOW + 1])
+    h2 = 0.5 * (hulls[q, HULL_BOX_HIGH + 2] - hulls[q, HULL_BOX_LOW + 2])
+    d0, d1, d2 = edge_start[r, 0] - c0, edge_start[r, 1] - c1, edge_start[r, 2] - c2
+    reach = max(abs(d0), abs(d1), abs(d2))
+    half_max = max(h0, h1, h2)
+    cuts = cut
     jump = 0.0
     for f in range(face_normal.shape[1]):
-        value = 0.0
-        spread = 0.0
-        size = 0.0
-        for k in range(3):
-            n = face_normal[r, f, k]
-            centre = 0.5 * (hulls[q, HULL_BOX_LOW + k] + hulls[q, HULL_BOX_HIGH + k])
-            value += n * (edge_start[r, k] - centre)
-            spread += abs(n) * 0.5 * (hulls[q, HULL_BOX_HIGH + k] - hulls[q, HULL_BOX_LOW + k])
-            size += n * n
-        tolerance = SIGN_EPS * np.sqrt(size) * (reach + half_max)
+        n0, n1, n2 = face_normal[r, f, 0], face_normal[r, f, 1], face_normal[r, f, 2]
+        value = n0 * d0 + n1 * d1 + n2 * d2
+        spread = abs(n0) * h0 + abs(n1) * h1 + abs(n2) * h2
+        tolerance = SIGN_EPS * face_size[r, f] * (reach + half_max)
         # this face's plane may cut the box: the jump may change inside
         cuts |= not abs(value) > spread + tolerance
         jump += 1.0 if value > 0 else -1.0
@@ -233,12 +232,12 @@ def _detect(node_low, node_high, node_axis, node_spread, node_lights, lights_see
                     continue
                 if not _box_passes(hulls, q, record_low, record_high, r):
                     continue
-                if not _may_be_silhouette(edge_start, face_normal, r, cut, hulls, q):
+                if not _may_be_silhouette(edge_start, face_normal, face_size, r, cut, hulls, q):
                     continue
                 for u in range(query_unit[q], query_unit[q] + query_units[q]):
                     if not _box_passes(unit_hulls, u, record_low, record_high, r):
                         continue
-                    if not _may_be_silhouette(edge_start, face_normal, r, cut, unit_hulls, u):
+                    if not _may_be_silhouette(edge_start, face_normal, face_size, r, cut, unit_hulls, u):
                         continue
                     for j in range(unit_first[u], unit_first[u] + unit_size[u]):
                         if m == capacity:  # this query again, with a new buffer
