@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .edge_tree import _first_equal_rows
 from .geometry import cross3, newell_normal
 
 # Two triangles are coplanar when their unit normals agree to this and the far vertex lies on the plane
@@ -340,9 +341,11 @@ def triangle_components(triangles: np.ndarray) -> np.ndarray:
     n = len(triangles)
     if n == 0:
         return np.zeros(0, np.int64)
-    _, vertex_id = _unique_points(np.asarray(triangles, np.float64).reshape(-1, 3))
-    vertex_id = vertex_id.reshape(n, 3)
-    label = _components(vertex_id[:, :2].reshape(-1), vertex_id[:, 1:].reshape(-1), int(vertex_id.max()) + 1)
+    # Each corner's id: the first corner at the same position (a hash table over the coordinates' bits, + 0.0
+    # making -0.0 equal to 0.0), not a sort: only which corners coincide matters here.
+    corners = np.ascontiguousarray(np.asarray(triangles, np.float64).reshape(-1, 3) + 0.0)
+    vertex_id = _first_equal_rows(corners.view(np.int64)).reshape(n, 3)
+    label = _components(vertex_id[:, :2].reshape(-1), vertex_id[:, 1:].reshape(-1), 3 * n)
     if label is None:
         return np.zeros(n, np.int64)
     return label[vertex_id[:, 0]]
