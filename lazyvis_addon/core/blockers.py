@@ -19,6 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from .edge_tree import _first_equal_rows
 from .geometry import cross3, newell_normal
@@ -218,8 +219,6 @@ class ConvexParts:
         start = ids[real]
         end = np.take_along_axis(ids, following, axis=1)[real]
         label = _components(start, end, len(positions))
-        if label is None:
-            return empty
         face_label = label[ids[:, 0]]
         # Closed: each undirected edge is used exactly twice, once in each direction.
         n_ids = len(positions)
@@ -319,25 +318,36 @@ def _rank_within(group: np.ndarray) -> np.ndarray:
     return rank
 
 
-def _components(start: np.ndarray, end: np.ndarray, n_vertices: int, max_rounds: int = 200):
-    """Connected-component label (smallest vertex id) of each vertex, joined by edges (start, end); None
-    when the labels do not settle within ``max_rounds`` (then no part is used)."""
-    label = np.arange(n_vertices)
-    for _ in range(max_rounds):  # label propagation with pointer jumping: a few dozen rounds at most
-        smaller = np.minimum(label[start], label[end])
-        # Hook both ends and the vertices they point to (a whole tree follows its root at once).
-        for joined in (start, end, label[start], label[end]):  # four index arrays
-            np.minimum.at(label, joined, smaller)
-        label = label[label]
-        if (label[start] == label[end]).all() and (label[label] == label).all():
-            return label
-    return None
+def _components(start: np.ndarray, end: np.ndarray, n_vertices: int) -> np.ndarray:
+    """Connected-component label (smallest vertex id) of each vertex (n_vertices,) int64, joined by edges
+    (start, end) (E,) int64: union-find, compiled (label propagation in numpy took a few dozen rounds of
+    scattered minima, 0.021 s of anti-aliasing's 0.39 s on suzanne_dense3 at 128 px)."""
+    return _union_find(np.ascontiguousarray(start, np.int64), np.ascontiguousarray(end, np.int64), int(n_vertices))
+
+
+@njit(cache=True, nogil=True)
+def _union_find(start, end, n_vertices):
+    parent = np.arange(n_vertices)
+    for e in range(len(start)):
+        a, b = start[e], end[e]
+        while parent[a] != a:  # roots, halving the paths on the way
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        while parent[b] != b:
+            parent[b] = parent[parent[b]]
+            b = parent[b]
+        if a < b:  # the smaller id stays the root: a component's root is its smallest vertex
+            parent[b] = a
+        elif b < a:
+            parent[a] = b
+    for v in range(n_vertices):  # parents have smaller ids: each vertex's parent is already final
+        parent[v] = parent[parent[v]]
+    return parent
 
 
 def triangle_components(triangles: np.ndarray) -> np.ndarray:
     """Connected surfaces of a triangle soup: (T,) int64 label of each triangle (T, 3, 3), equal for
-    triangles joined through shared vertex positions. A mesh whose labels do not settle (see
-    ``_components``) counts as one surface."""
+    triangles joined through shared vertex positions."""
     n = len(triangles)
     if n == 0:
         return np.zeros(0, np.int64)
@@ -346,8 +356,6 @@ def triangle_components(triangles: np.ndarray) -> np.ndarray:
     corners = np.ascontiguousarray(np.asarray(triangles, np.float64).reshape(-1, 3) + 0.0)
     vertex_id = _first_equal_rows(corners.view(np.int64)).reshape(n, 3)
     label = _components(vertex_id[:, :2].reshape(-1), vertex_id[:, 1:].reshape(-1), 3 * n)
-    if label is None:
-        return np.zeros(n, np.int64)
     return label[vertex_id[:, 0]]
 
 

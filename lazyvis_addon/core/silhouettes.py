@@ -41,6 +41,7 @@ from numba import njit
 
 from . import arrangement as arrangement_module, detection as detection_module
 from .arcs import Arcs, _cone_planes
+from .blockers import _union_find
 from .arrangement import compile_arrangement, jumps_between, visible_fans
 from .emitters import compile_emitters
 from .facing import compile_facing
@@ -252,7 +253,8 @@ def compile_kernels() -> bool:
                np.zeros((1, 2)), np.empty((1, HULL_WIDTH)))
     _fan_triangles_kernel(np.zeros(1, np.int64), np.zeros(1, np.int64), three, three, three, three,
                           np.zeros((1, 2)), three, three, np.empty((1, 3, 2)))
-    kernels = (detection_module._detect, *compile_regions(), arrangement_module._fans,
+    _union_find(np.zeros(1, np.int64), np.zeros(1, np.int64), 1)  # anti-aliasing's surfaces
+    kernels = (detection_module._detect, _union_find, *compile_regions(), arrangement_module._fans,
                arrangement_module._jumps, _cone_planes, _bounding_cones, _reference_points, _hull_rows,
                *compile_edge_tree(), *compile_rng(), *compile_illumination(), *compile_ggx(), _fan_triangles_kernel, *compile_geometry(), *compile_terminator(),
                *compile_facing(), *compile_emitters())
