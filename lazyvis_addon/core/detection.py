@@ -98,26 +98,32 @@ def _box_passes(hulls, q, box_low, box_high, i):
     lies not wholly beyond a side plane, and has a point in front of the light's plane and not above every
     receiver.
 
-    Whole arrays and row indices, no row views (see ``arcs.jump_at``). The single exit dates from before
-    ``_detect`` borrowed its arrays, when returns inside loops kept Numba's reference counting alive
-    (0.131 -> 0.121 s on tree chunks); with borrowed arrays that reason is gone and it was not re-measured."""
-    passes = True
+    Whole arrays and row indices, no row views (see ``arcs.jump_at``). The cheapest test first, each
+    returning at once: with borrowed arrays an early return costs no reference counting, and it beat the
+    single exit this had (detection's kernel on suzanne_dense3's chunks at 256 px 0.83 -> 0.77 s, the
+    tree's 1.32 -> 1.25 s, alternating runs)."""
     for k in range(3):
-        passes &= not (box_low[i, k] > hulls[q, HULL_HIGH + k] or box_high[i, k] < hulls[q, HULL_LOW + k])
+        if box_low[i, k] > hulls[q, HULL_HIGH + k] or box_high[i, k] < hulls[q, HULL_LOW + k]:
+            return False
     eps = hulls[q, HULL_EPS]
-    for s in range(4):
-        lowest = 0.0
-        for k in range(3):
-            n = hulls[q, HULL_SIDE_NORMAL + 3 * s + k]
-            lowest += n * (box_low[i, k] if n > 0 else box_high[i, k])
-        passes &= hulls[q, HULL_SIDE_VALID + s] == 0.0 or not lowest > hulls[q, HULL_SIDE_OFFSET + s] + eps
     height_max = -hulls[q, HULL_BASE]
     height_min = -hulls[q, HULL_BASE]
     for k in range(3):
         w = hulls[q, HULL_TOWARD + k]
         height_max += w * (box_high[i, k] if w > 0 else box_low[i, k])
         height_min += w * (box_low[i, k] if w > 0 else box_high[i, k])
-    return passes and height_max > eps and height_min < hulls[q, HULL_HEIGHT]
+    if not (height_max > eps and height_min < hulls[q, HULL_HEIGHT]):
+        return False
+    for s in range(4):
+        if hulls[q, HULL_SIDE_VALID + s] == 0.0:
+            continue
+        lowest = 0.0
+        for k in range(3):
+            n = hulls[q, HULL_SIDE_NORMAL + 3 * s + k]
+            lowest += n * (box_low[i, k] if n > 0 else box_high[i, k])
+        if lowest > hulls[q, HULL_SIDE_OFFSET + s] + eps:
+            return False
+    return True
 
 
 @njit(cache=True, nogil=True, inline="always")
