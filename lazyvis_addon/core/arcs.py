@@ -126,7 +126,8 @@ def arc_test(rows, c, cones, cone_valid, r, total, cut, edge_start, edge_end, ou
         va = rows[c, plane] * a0 + rows[c, plane + 1] * a1 + rows[c, plane + 2] * a2
         vb = rows[c, plane] * b0 + rows[c, plane + 1] * b1 + rows[c, plane + 2] * b2
         beyond |= va < 0 and vb < 0
-    # One exit (no return inside): see ``detection._box_passes`` for why, and why it may no longer matter.
+    # One exit: returning early here (with the cone worked out after the quad test) measured no faster on
+    # 2026-12-05, unlike ``detection._box_passes``.
     inside = False
     if (front_a or front_b) and not beyond:
         n0, n1, n2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
@@ -148,7 +149,7 @@ def _cone_range(a0, a1, a2, b0, b1, b2, x0, x1, x2, planes, valid, row, toward_x
     positive length remains. (x0, x1, x2) = a x b."""
     length = max(np.sqrt(x0 * x0 + x1 * x1 + x2 * x2), 1e-300)
     enter, leave = 0.0, 1.0
-    outside = False  # one exit, after the loop (see ``detection._box_passes``)
+    outside = False
     for v in range(planes.shape[1]):
         p0, p1, p2 = planes[row, v, 0], planes[row, v, 1], planes[row, v, 2]
         va = p0 * a0 + p1 * a1 + p2 * a2
