@@ -9,6 +9,7 @@ Conventions follow Blender: the camera looks along its local -Z with +Y up; imag
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -83,6 +84,9 @@ class Camera:
             raise ValueError(f"camera resolution must be at least 1 x 1, got {self.width} x {self.height}")
         if not (np.isfinite(self.world_from_camera).all() and np.isfinite(self.screen_window).all()):
             raise ValueError("camera transform or screen window contains NaN or infinite values")
+        axes = self.world_from_camera[:3, :3]
+        if not abs(np.linalg.det(axes)) > 1e-12 * max(float(np.abs(axes).max()), 1e-300) ** 3:
+            raise ValueError("camera transform is singular (a zero scale on the camera?)")
         left, right, bottom, top = self.screen_window
         if not (right > left and top > bottom):
             raise ValueError(f"camera screen window must have right > left and top > bottom, got {self.screen_window}")
@@ -736,7 +740,10 @@ class Scene:
         if dropped:
             progress.warn(f"{dropped} light(s) seen by the camera have a zero size, no power or a NaN transform "
                           "and are not drawn")
-        return Scene(triangles, material_index, Materials(**parameters), lights, self.camera,
+        # A camera built well and changed since (a script writing its arrays) is checked again: a NaN
+        # transform would otherwise miss everything and show the background, silently (found by fuzzing).
+        camera = dataclasses.replace(self.camera)
+        return Scene(triangles, material_index, Materials(**parameters), lights, camera,
                      self.background, shading_normals, corner_uvs, list(self.textures), terminator_offset, facing,
                      hulls, seen)
 

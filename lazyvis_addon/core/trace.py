@@ -264,7 +264,8 @@ class RayTracer(_TracerBase):
             import embreex.mesh_construction as embree_mesh
             import embreex.rtcore_scene as embree_scene
 
-            triangles_f32 = np.ascontiguousarray(self.triangles, dtype=np.float32)
+            with np.errstate(over="ignore"):  # an overflow is reported just below, as a ValueError
+                triangles_f32 = np.ascontiguousarray(self.triangles, dtype=np.float32)
             if not np.isfinite(triangles_f32).all():
                 raise ValueError("triangle coordinates overflow float32")
             self._embree_scene = embree_scene.EmbreeScene()
