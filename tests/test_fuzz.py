@@ -101,13 +101,13 @@ def agreement(recipe: SceneRecipe) -> bool:
     return True
 
 
-@settings(max_examples=max(1, int(120 * SCALE)), **PROFILE)
+@settings(max_examples=max(1, int(300 * SCALE)), **PROFILE)
 @given(scene_recipes(damage=True), render_settings())
 def test_any_scene_renders_a_finite_non_negative_image_or_fails_cleanly(recipe, render_settings_):
     check_image(recipe, render_settings_)
 
 
-@settings(max_examples=max(1, int(60 * SCALE)), **PROFILE)
+@settings(max_examples=max(1, int(200 * SCALE)), **PROFILE)
 @given(scene_recipes(max_size=10))
 def test_default_integrator_agrees_with_reference_on_fuzzed_scenes(recipe):
     agreement(recipe)
