@@ -4,6 +4,7 @@ import dataclasses
 import re
 import subprocess
 import sys
+import threading
 import time
 
 import numpy as np
@@ -371,6 +372,58 @@ def test_cancel_stops_within_a_second():
     with pytest.raises(RenderCancelled):
         render(scene, Settings(integrator="reference"), CancelAfter(0.3))
     assert time.perf_counter() - started < 1.3
+
+
+class CancelInStage(Progress):
+    """Asks for a cancel at the first progress report inside ``stage`` (so the stage is under way, its
+    batches on the pool), and notes when."""
+
+    def __init__(self, stage):
+        super().__init__()
+        self.stage, self.asked = stage, None
+
+    def on_advance(self, name, done, total):
+        if name == self.stage and self.asked is None:
+            self.asked = time.perf_counter()
+
+    def is_cancelled(self):
+        return self.asked is not None
+
+
+@pytest.mark.parametrize("stage", ["Camera rays", "Illumination", "Composing passes", "Anti-aliasing"])
+def test_default_render_cancels_within_a_second_in_every_stage(stage):
+    """Issue 17: Esc returns within a second at every stage of a default render; the pool's threads stop at
+    their next chunk (they check a flag the calling thread sets, ``Progress.stop_workers``) and the ray
+    tracer's threads are closed, so no thread of the render outlives it."""
+    scene = demo_scenes.floating_boxes(resolution=192, n_boxes=24)
+    progress = CancelInStage(stage)
+    with pytest.raises(RenderCancelled):
+        render(scene, Settings(threads=2, pixel_batch=2048), progress)
+    assert progress.asked is not None, f"the render never reported progress in {stage}"
+    assert time.perf_counter() - progress.asked < 1.0
+    assert not [t.name for t in threading.enumerate() if t.name.startswith("lazyvis")]
+
+
+def test_a_cancelled_progress_stops_pool_threads_only_through_its_flag():
+    """A pool thread never asks the front end (Blender wants its own thread): before ``stop_workers`` its
+    check passes even while the front end says cancel; after it, the check raises on any thread."""
+    progress = CancelAfter(-1.0)  # the front end says cancel from the start
+    seen = []
+
+    def check():
+        try:
+            progress.check_cancel()
+            seen.append("passed")
+        except RenderCancelled:
+            seen.append("cancelled")
+
+    worker = threading.Thread(target=check)
+    worker.start(), worker.join()
+    with pytest.raises(RenderCancelled):
+        progress.check_cancel()  # the owner's thread asks the front end, and stops the workers
+    worker = threading.Thread(target=check)
+    worker.start(), worker.join()
+    assert seen == ["passed", "cancelled"]
 
 
 def test_core_imports_and_renders_without_bpy():

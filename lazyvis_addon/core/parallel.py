@@ -5,9 +5,13 @@ from __future__ import annotations
 
 import os
 from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import TimeoutError as FutureTimeout
 from typing import Callable, Iterable, Sequence
 
 from .progress import Progress
+
+# While it waits for a batch, the calling thread asks for a cancel this often (seconds).
+CANCEL_POLL = 0.1
 
 
 def thread_count(requested: int) -> int:
@@ -19,8 +23,10 @@ def map_batches(function: Callable, batches: Sequence, threads: int, progress: P
                 units: Iterable[int] | None = None) -> list:
     """``[function(b) for b in batches]`` computed on ``threads`` threads, results in order.
 
-    After each result the progress object advances by that batch's units (and may raise RenderCancelled,
-    which cancels the batches not yet started; running ones finish first, each well under a second).
+    After each result the progress object advances by that batch's units, and while it waits it checks for a
+    cancel every CANCEL_POLL seconds; a cancel (RenderCancelled) or a failed batch cancels the batches not
+    yet started and stops the running ones at their next ``progress.check_cancel()`` (``function`` should
+    call it between chunks of its work), then returns when they have.
     """
     units = list(units) if units is not None else [1] * len(batches)
     if threads <= 1 or len(batches) <= 1:
@@ -37,12 +43,27 @@ def map_batches(function: Callable, batches: Sequence, threads: int, progress: P
         futures = [pool.submit(function, batch) for batch in batches[:window]]
         results = []
         for index, unit in enumerate(units):
-            results.append(futures[index].result())
+            results.append(_result(futures[index], progress))
             futures[index] = None
             if index + window < len(batches):
                 futures.append(pool.submit(function, batches[index + window]))
             if progress is not None:
                 progress.advance(unit)
         return results
+    except BaseException:
+        if progress is not None:
+            progress.stop_workers()
+        raise
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _result(future, progress: Progress | None):
+    """The future's result; meanwhile the progress object is asked for a cancel every CANCEL_POLL seconds."""
+    if progress is None:
+        return future.result()
+    while True:
+        try:
+            return future.result(timeout=CANCEL_POLL)
+        except FutureTimeout:
+            progress.check_cancel()

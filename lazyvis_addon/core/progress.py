@@ -3,6 +3,11 @@
 The core calls ``begin_stage`` / ``advance`` between batches and ``check_cancel`` (through
 ``advance``) so that a cancel stops a render within one batch. The Blender layer subclasses this to
 drive ``RenderEngine.update_stats`` / ``update_progress`` / ``test_break``; the command line prints a bar.
+
+Only the thread that made the progress object asks the front end (Blender wants its own thread); the pool's
+threads call ``check_cancel`` too, between chunks of their work, and it raises there once the owner has
+seen a cancel (``stop_workers``): so a cancel waits for a chunk, not for a whole batch (a batch of pass 2
+under a tree's crown took 2 s).
 """
 
 from __future__ import annotations
@@ -28,6 +33,8 @@ class Progress:
         self._stage_start = 0.0
         self._total = 0
         self._done = 0
+        self._owner = threading.get_ident()
+        self._stop = threading.Event()
 
     # -- called by the core ------------------------------------------------------------------------
     def begin_stage(self, name: str, total: int = 0, done: int = 0) -> None:
@@ -65,8 +72,19 @@ class Progress:
         self.on_warning(message)
 
     def check_cancel(self) -> None:
-        if self.is_cancelled():
+        """Raise RenderCancelled if the render is to stop: on the owner's thread when the front end says so
+        (or a worker failed), on a pool thread when the owner has called ``stop_workers``."""
+        if threading.get_ident() != self._owner:
+            if self._stop.is_set():
+                raise RenderCancelled("render cancelled")
+            return
+        if self._stop.is_set() or self.is_cancelled():
+            self._stop.set()
             raise RenderCancelled("render cancelled")
+
+    def stop_workers(self) -> None:
+        """Make the pool's threads raise RenderCancelled at their next ``check_cancel``."""
+        self._stop.set()
 
     # -- overridden by front ends ------------------------------------------------------------------
     def on_stage(self, name: str, total: int) -> None:
@@ -83,14 +101,12 @@ class Progress:
 
 
 class _Nested(Progress):
-    """``Progress.nested``: stages and advances are the outer stage's; cancel and warnings go to the outer,
-    cancel only from the thread that made this one (front ends ask Blender, which wants its own thread;
-    work on the pool is cancelled between its batches by the calling thread)."""
+    """``Progress.nested``: stages and advances are the outer stage's; cancel and warnings go to the outer
+    (whose ``check_cancel`` tells its own thread from the pool's)."""
 
     def __init__(self, outer: Progress) -> None:
         super().__init__()
         self.outer = outer
-        self._thread = threading.get_ident()
 
     def begin_stage(self, name: str, total: int = 0, done: int = 0) -> None:
         self.check_cancel()
@@ -105,8 +121,10 @@ class _Nested(Progress):
         self.outer.warn(message)
 
     def check_cancel(self) -> None:
-        if threading.get_ident() == self._thread:
-            self.outer.check_cancel()
+        self.outer.check_cancel()
+
+    def stop_workers(self) -> None:
+        self.outer.stop_workers()
 
     def nested(self) -> Progress:
         return self

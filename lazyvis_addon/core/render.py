@@ -98,40 +98,45 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
     scene = _emitters_as_triangles_where_needed(scene, settings, progress)
     progress.begin_stage("Building BVH")
     tracer = RayTracer(scene.triangles)
-    extent = scene_extent(scene)
+    # Closed however the render ends (a cancel included): its thread pool would otherwise live until the
+    # exception's frames are collected.
+    try:
+        extent = scene_extent(scene)
 
-    frames = light_frames(scene.lights, scene.facing, scene_centre(scene), extent, scene.hulls)
-    frames.part_of = hull_faces_in_scene(frames.hulls, scene.triangles)
-    if frames.hulls is not None:
-        _warn_nearby_geometry(scene, frames, progress)
-    pixel_global = _global_pixels(camera)
-    if settings.uses_silhouettes:
-        frame = _silhouette_frame(scene, tracer, extent, frames, settings, progress, stats, pixel_global)
-    else:
-        frame = _blocker_map_frame(scene, tracer, extent, frames, settings, progress, stats, pixel_global)
+        frames = light_frames(scene.lights, scene.facing, scene_centre(scene), extent, scene.hulls)
+        frames.part_of = hull_faces_in_scene(frames.hulls, scene.triangles)
+        if frames.hulls is not None:
+            _warn_nearby_geometry(scene, frames, progress)
+        pixel_global = _global_pixels(camera)
+        if settings.uses_silhouettes:
+            frame = _silhouette_frame(scene, tracer, extent, frames, settings, progress, stats, pixel_global)
+        else:
+            frame = _blocker_map_frame(scene, tracer, extent, frames, settings, progress, stats, pixel_global)
 
-    resolved = None
-    if settings.aa_samples > 1 and (frame.grid.index_triangle >= 0).any():
-        resolved = _antialias(scene, tracer, extent, frames, settings, progress, stats, pixel_global, frame)
-    output = frame.output
-    if resolved is not None:
-        pixels, pooled, counts = resolved
-        output.combined.reshape(-1, 4)[pixels] = pooled
-        output.sample_count.reshape(-1)[pixels] = counts
-    if len(scene.seen):
-        # Lights the camera sees add their radiance over whatever lies behind them (Cycles: a light is no
-        # occluder for camera rays and adds no alpha).
-        reached, drawn, outlined = draw_seen_lights(scene.seen, camera, tracer, settings, pixel_global, progress)
-        output.combined.reshape(-1, 4)[reached, :3] += drawn.astype(np.float32)
-        counts = output.sample_count.reshape(-1)
-        counts[outlined] = np.maximum(counts[outlined], OUTLINE_SAMPLES)
-    stats["rays_cast"] = tracer.n_rays_cast
-    stats["seconds"] = time.perf_counter() - started
-    stats["stage_seconds"] = dict(progress.stage_seconds)
-    stats["peak_memory_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-    output.stats = stats
-    output.warnings = list(progress.warnings)
-    return output
+        resolved = None
+        if settings.aa_samples > 1 and (frame.grid.index_triangle >= 0).any():
+            resolved = _antialias(scene, tracer, extent, frames, settings, progress, stats, pixel_global, frame)
+        output = frame.output
+        if resolved is not None:
+            pixels, pooled, counts = resolved
+            output.combined.reshape(-1, 4)[pixels] = pooled
+            output.sample_count.reshape(-1)[pixels] = counts
+        if len(scene.seen):
+            # Lights the camera sees add their radiance over whatever lies behind them (Cycles: a light is no
+            # occluder for camera rays and adds no alpha).
+            reached, drawn, outlined = draw_seen_lights(scene.seen, camera, tracer, settings, pixel_global, progress)
+            output.combined.reshape(-1, 4)[reached, :3] += drawn.astype(np.float32)
+            counts = output.sample_count.reshape(-1)
+            counts[outlined] = np.maximum(counts[outlined], OUTLINE_SAMPLES)
+        stats["rays_cast"] = tracer.n_rays_cast
+        stats["seconds"] = time.perf_counter() - started
+        stats["stage_seconds"] = dict(progress.stage_seconds)
+        stats["peak_memory_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+        output.stats = stats
+        output.warnings = list(progress.warnings)
+        return output
+    finally:
+        tracer.close()
 
 
 @dataclass
@@ -697,7 +702,7 @@ def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: Bloc
         local = None
         if edges is not None:
             result, n_pieces, rounds, extra = _shade_silhouettes(part, bsdf, globals_, frames, edges, tracer, settings,
-                                                                 groups)
+                                                                 groups, progress.check_cancel)
             return start, stop, result, n_pieces, rounds, (empty, empty, empty, 0), extra
         if settings.integrator != "standard_mc":
             lo, hi = entry_bounds[index], entry_bounds[index + 1]
@@ -748,9 +753,10 @@ def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: Bloc
 
 
 def _shade_silhouettes(part: SurfacePoints, bsdf: SurfaceBsdf, pixel_global: np.ndarray, frames, edges: MeshEdges,
-                       tracer, settings: Settings, groups) -> tuple[np.ndarray, int, int, dict]:
+                       tracer, settings: Settings, groups, check_cancel=None) -> tuple[np.ndarray, int, int, dict]:
     """Pass 2 by silhouettes over one batch of N points: radiance (N, 3), terms integrated, most arcs of a
-    couple, and the batch's "umbra" (N, L), "arcs_per_pixel" (N,) and SILHOUETTE_COUNTERS."""
+    couple, and the batch's "umbra" (N, L), "arcs_per_pixel" (N,) and SILHOUETTE_COUNTERS. ``check_cancel``
+    (a ``Progress.check_cancel``) is called between chunks of couples."""
     n_points = len(part)
     result = np.zeros((n_points, 3))
     extra = {"umbra": np.zeros((n_points, len(frames)), bool), "arcs_per_pixel": np.zeros(n_points, np.int64),
@@ -785,6 +791,8 @@ def _shade_silhouettes(part: SurfacePoints, bsdf: SurfaceBsdf, pixel_global: np.
             visible[couple] = True
             visible[whole] = True
             n_terms += len(couple) + len(whole)
+            if check_cancel is not None:
+                check_cancel()
         result += reflected_radiance(n_points, frames, couples, couple_pixel, weights)
         rounds = max(rounds, found["max_arcs_per_couple"])
         seen = np.zeros((n_points, len(frames)), bool)
