@@ -64,6 +64,23 @@ class Interrupted(Exception):
 # -- pure helpers (no bpy) ------------------------------------------------------------------------------------
 
 
+
+def resident_memory_mb() -> float | None:
+    """This process's resident memory now, in MB (Linux ``/proc/self/statm``), else the peak so far
+    (``getrusage``), else None: printed per frame, as Blender prints ``Mem:``, so that a long animation
+    shows whether memory creeps."""
+    try:
+        with open("/proc/self/statm") as statm:
+            return int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2 ** 20
+    except (OSError, ValueError, IndexError, AttributeError):
+        pass
+    try:
+        import resource
+    except ImportError:  # Windows
+        return None
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / 2 ** 20 if sys.platform == "darwin" else peak / 1024  # bytes on macOS, KB on Linux
+
 def parse_frames(spec: str, start: int, end: int) -> list[int]:
     """Frames of Blender's ``-f`` argument: ``N``, ``+N`` (start + N), ``-N`` (end - N), ``A..B``, comma lists.
 
@@ -327,7 +344,9 @@ def render_command(args: argparse.Namespace) -> int:
             except RuntimeError as error:
                 raise CliError(f"frame {frame}: cannot write {path}: {_error_text(error)}") from None
             seconds = time.perf_counter() - started
-            print(f"Saved: '{path}' (frame {frame}, {width} x {height}, {seconds:.2f} s)", flush=True)
+            memory = resident_memory_mb()
+            print(f"Saved: '{path}' (frame {frame}, {width} x {height}, {seconds:.2f} s"
+                  + (f", Mem: {memory:.1f} MB)" if memory is not None else ")"), flush=True)
             if png_pattern:
                 png = substitute_frame(png_pattern, frame)
                 Path(png).parent.mkdir(parents=True, exist_ok=True)
