@@ -404,6 +404,30 @@ def test_default_render_cancels_within_a_second_in_every_stage(stage):
     assert not [t.name for t in threading.enumerate() if t.name.startswith("lazyvis")]
 
 
+def test_the_edge_tree_build_checks_for_a_cancel_between_its_steps():
+    """A million triangles take the edge tree 5 s here: it checks between steps (the longest stretch
+    without a check then 0.06 s), and a cancel at any of them stops the build."""
+    from lazyvis_addon.core.edge_tree import MeshEdges
+
+    triangles = demo_scenes.floating_boxes(resolution=8, n_boxes=4).triangles
+    calls = []
+    MeshEdges.from_triangles(triangles, check_cancel=lambda: calls.append(1))
+    assert len(calls) >= 6
+
+    def cancel_at(k):
+        def check():
+            calls.append(1)
+            if len(calls) == k:
+                raise RenderCancelled("render cancelled")
+        return check
+
+    for k in (1, 3, 6):
+        calls.clear()
+        with pytest.raises(RenderCancelled):
+            MeshEdges.from_triangles(triangles, check_cancel=cancel_at(k))
+        assert len(calls) == k
+
+
 def test_a_cancelled_progress_stops_pool_threads_only_through_its_flag():
     """A pool thread never asks the front end (Blender wants its own thread): before ``stop_workers`` its
     check passes even while the front end says cancel; after it, the check raises on any thread."""

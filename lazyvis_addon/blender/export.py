@@ -754,6 +754,7 @@ class _DepsgraphReader:
     # -- traversal -----------------------------------------------------------------------------------
     def read(self, depsgraph) -> None:
         for instance in depsgraph.object_instances:  # one per object or instance, not per triangle
+            self.progress.check_cancel()  # Esc between objects: a mesh's export is one array read
             obj = instance.object
             if not instance.show_self or _hidden_in_render(instance):
                 continue

@@ -11,6 +11,7 @@ from which something under them may be a silhouette, so that ``detection`` drops
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 from numba import njit
@@ -80,9 +81,13 @@ class MeshEdges:
         return (len(self.node_low) + 1) // 2
 
     @classmethod
-    def from_triangles(cls, triangles: np.ndarray, frames: LightFrames | None = None) -> "MeshEdges":
+    def from_triangles(cls, triangles: np.ndarray, frames: LightFrames | None = None,
+                       check_cancel: Callable[[], None] | None = None) -> "MeshEdges":
         """Edge records of a triangle soup (T, 3, 3): vertices welded by position, each undirected edge one
-        record with its triangles' third vertices, plus each light's cut segments."""
+        record with its triangles' third vertices, plus each light's cut segments. ``check_cancel`` (a
+        ``Progress.check_cancel``) is called between the steps: a million triangles take 5 s here, each
+        step under half a second."""
+        check = check_cancel if check_cancel is not None else (lambda: None)
         triangles = np.asarray(triangles, np.float64)
         n = len(triangles)
         points = triangles.reshape(-1, 3)
@@ -94,6 +99,7 @@ class MeshEdges:
         positions = np.zeros((int(vertex_id.max()) + 1 if len(vertex_id) else 0, 3))
         positions[vertex_id] = points
         vertex_id = vertex_id.reshape(n, 3)
+        check()
         # A face repeated (the same three vertices) blocks as one: the reference depth ray meets the copies
         # at one distance and counts one, so the edges count one too.
         corners = np.sort(vertex_id, axis=1)
@@ -111,6 +117,7 @@ class MeshEdges:
         keep = (low_id != high_id) & np.repeat(single, 3)  # a collapsed edge has no arc; copies add none
         low_id, high_id, third, triangle = low_id[keep], high_id[keep], third[keep], triangle[keep]
         key = low_id * max(len(positions), 1) + high_id
+        check()
         # One stable sort gives both each half-edge's edge (dense ids in key order, as np.unique's
         # inverse) and its rank among the half-edges of that edge in array order.
         order = np.argsort(key, kind="stable")
@@ -141,20 +148,24 @@ class MeshEdges:
         triangles_of[record, slot] = triangle
         lights = np.full(n_records, -1, np.int64)
         parts = [(start, end, thirds, triangles_of, lights)]
+        check()
         # Every vertex's height above each light's plane (the cut segments' and the in-plane faces').
         heights = [np.einsum("tvk,k->tv", triangles - frames.origin[light], frames.normal[light])
                    for light in range(len(frames))] if frames is not None else []
         for light, height in enumerate(heights):  # lights: a handful
             parts.append(_cut_segments(triangles, height, frames, light, width, single))
         start, end, thirds, triangles_of, lights = (np.concatenate([p[i] for p in parts]) for i in range(5))
+        check()
         winding = cross3(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
-        edges = cls._in_tree_order(start, end, thirds, triangles_of, lights, winding)
+        edges = cls._in_tree_order(start, end, thirds, triangles_of, lights, winding, check)
+        check()
         edges.n_triangles = n
         edges.part_of = frames.part_of if frames is not None and frames.part_of is not None else \
             hull_faces_in_scene(frames.hulls if frames is not None else None, triangles)
         edges.in_light_planes = _in_light_planes(triangles, heights, frames, edges.part_of) if frames is not None \
             else np.zeros(0, np.int64)
         edges.lights_seen = np.full(len(edges), ALL_LIGHTS, np.uint64)
+        check()
         if frames is not None and len(edges):
             _silhouette_lights(edges.start, edges.face_normal, edges.face_offset, edges.face_size, edges.triangle,
                                edges.light, np.ascontiguousarray(frames.vertices, np.float64),
@@ -170,7 +181,7 @@ class MeshEdges:
         return edges
 
     @classmethod
-    def _in_tree_order(cls, start, end, third, triangle, light, winding) -> "MeshEdges":
+    def _in_tree_order(cls, start, end, third, triangle, light, winding, check=lambda: None) -> "MeshEdges":
         low, high = np.minimum(start, end), np.maximum(start, end)
         # A cut segment lies in its light's plane, where detection's hull keeps only what has a point in
         # front of the plane (beyond its tolerance): its box is grown off the plane, so the tree and the
@@ -199,9 +210,11 @@ class MeshEdges:
             highs.append(level_high)
         node_low = np.concatenate(lows[::-1])
         node_high = np.concatenate(highs[::-1])
+        check()
         face_normal = cross3((end - start)[:, None], third - start[:, None])
         face_offset = np.einsum("ekd,ed->ek", face_normal, start)
         face_size = np.linalg.norm(face_normal, axis=2)
+        check()
         node_axis, node_spread = _normal_cones(face_normal, face_size, triangle, light, winding, padded_leaves)
         return cls(start, end, third, triangle, light, face_normal, face_offset, face_size, low, high, node_low,
                    node_high, node_axis=node_axis, node_spread=node_spread)

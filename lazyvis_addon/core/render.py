@@ -231,7 +231,7 @@ def _silhouette_frame(scene: Scene, tracer, extent: float, frames, settings: Set
     n_pixels = height * width
     x0, y0, x1, _ = camera.window
     progress.begin_stage("Building edge tree")
-    edges = MeshEdges.from_triangles(scene.triangles, frames)
+    edges = MeshEdges.from_triangles(scene.triangles, frames, progress.check_cancel)
     progress.end_stage()
     stats["edge_records"] = len(edges)
     # Numba compiles pass 2's kernels on a machine's first render (about 10 s), then its cache serves

@@ -208,6 +208,21 @@ def test_cancel_stops_quietly(scene, monkeypatch):
     assert seen == ["cancelled"]
 
 
+def test_cancel_during_export_stops_before_the_core(scene, monkeypatch):
+    """Esc while the scene is exported (between objects) ends the render quietly; the core never starts."""
+    simple_scene(scene)
+    started, asked = [], []
+
+    def is_cancelled(self):  # the stage's own check passes; Esc comes once the export is under way
+        asked.append(1)
+        return len(asked) > 1
+
+    monkeypatch.setattr(engine_module.EngineProgress, "is_cancelled", is_cancelled)
+    monkeypatch.setattr(engine_module, "core_render", lambda *args: started.append(1))
+    bpy.ops.render.render()  # no error: a cancel is not a failure
+    assert started == []
+
+
 def test_core_warnings_reach_blender_reports(scene, monkeypatch, reports):
     simple_scene(scene)
 
