@@ -17,7 +17,8 @@ from lazyvis_addon.core.blockers import BlockerPolygons
 from lazyvis_addon.core.demo_scenes import plane_under_light, quad_triangles
 from lazyvis_addon.core.geometry import light_frames
 from lazyvis_addon.core.illumination import analytic, outgoing_radiance, visible_pieces
-from lazyvis_addon.core.render import FRAME_PIXEL_BYTES, MIN_WORKING_MB, _primary, band_rows_for, working_budget_mb
+from lazyvis_addon.core.render import (FRAME_PIXEL_BYTES, MIN_WORKING_MB, _primary, band_rows_for, geometry_mb,
+                                       working_budget_mb)
 from lazyvis_addon.core.settings import VISIBILITY_METHODS
 from lazyvis_addon.core.surface import scene_extent
 from lazyvis_addon.core.trace import RayTracer
@@ -228,7 +229,7 @@ def test_bands_of_rows_render_the_same_pixels_as_one_band(working_mb):
     same bit for bit at the default settings (anti-aliasing, its coverage rays and pooling across the
     bands' borders included)."""
     scene = demo_scenes.floating_boxes(resolution=96, n_boxes=16)
-    budget_mb = working_mb + 96 * 96 * FRAME_PIXEL_BYTES / 2 ** 20  # the frame's own arrays are paid first
+    budget_mb = working_mb + 96 * 96 * FRAME_PIXEL_BYTES / 2 ** 20 + geometry_mb(len(scene.triangles))  # paid first
     whole = render(scene, Settings(threads=2))
     banded = render(scene, Settings(threads=2, memory_budget_mb=budget_mb))
     assert banded.stats["working_budget_mb"] == pytest.approx(working_mb)
@@ -245,7 +246,7 @@ def test_stage_seconds_account_for_the_render():
     as anti-aliasing (it once began a stage of its own and the rest of anti-aliasing went untimed): the
     stages add up to the render's time, less only the bookkeeping between them."""
     scene = demo_scenes.floating_boxes(resolution=120, n_boxes=8)
-    budget_mb = 2 * MIN_WORKING_MB + 120 * 120 * FRAME_PIXEL_BYTES / 2 ** 20  # a few bands
+    budget_mb = 2 * MIN_WORKING_MB + 120 * 120 * FRAME_PIXEL_BYTES / 2 ** 20 + geometry_mb(len(scene.triangles))
     output = render(scene, Settings(threads=2, memory_budget_mb=budget_mb))
     stages = output.stats["stage_seconds"]
     assert output.stats["bands"] > 1 and output.stats["aa_pixels"] > 0
@@ -350,11 +351,35 @@ def test_the_frame_is_paid_from_the_budget_first():
     assert 1e9 - least + MIN_WORKING_MB <= needed < 1e9 - least + MIN_WORKING_MB + 1
     assert working_budget_mb(needed, 2160, 3840) >= MIN_WORKING_MB
     # The smallest budget a 64 x 64 frame takes renders it as the default does; a little less fails.
-    smallest = 64 * 64 * FRAME_PIXEL_BYTES / 2 ** 20 + MIN_WORKING_MB
+    smallest = 64 * 64 * FRAME_PIXEL_BYTES / 2 ** 20 + geometry_mb(len(scene.triangles)) + MIN_WORKING_MB
     tight = render(scene, Settings(threads=2, memory_budget_mb=smallest))
     np.testing.assert_array_equal(tight.combined, render(scene, Settings(threads=2)).combined)
     with pytest.raises(MemoryError, match="64 x 64 frame"):
         render(scene, Settings(memory_budget_mb=smallest - 1.0))
+
+
+def test_a_scene_too_large_for_the_budget_stops_before_building_anything():
+    """The geometry's structures (about GEOMETRY_TRIANGLE_BYTES a triangle) are paid from the budget with
+    the frame: 200,000 triangles need about 324 MB, so a 300 MB budget stops at once, naming the triangles
+    and the least budget, before the ray tracer is built; that least budget renders."""
+    n = 316  # a grid of 2 n^2 triangles over the lit plane
+    x, y = np.meshgrid(np.linspace(-1.5, 1.5, n + 1), np.linspace(-1.5, 1.5, n + 1))
+    grid = np.stack([x, y, np.full_like(x, 0.5)], axis=-1)
+    a, b, c, d = grid[:-1, :-1], grid[1:, :-1], grid[1:, 1:], grid[:-1, 1:]
+    sheet = np.concatenate([np.stack([a, b, c], -2).reshape(-1, 3, 3), np.stack([a, c, d], -2).reshape(-1, 3, 3)])
+    scene = plane_under_light(resolution=8, blocker=sheet)
+
+    class Stages(Progress):
+        def on_stage(self, name, total):
+            begun.append(name)
+
+    begun = []
+    with pytest.raises(MemoryError, match=r"too small for 199,714 triangles \(at least (\d+) MB") as raised:
+        render(scene, Settings(memory_budget_mb=300.0), Stages())
+    assert begun == ["Validating scene"]
+    least = float(re.search(r"at least (\d+) MB", str(raised.value)).group(1))
+    assert least == np.ceil(geometry_mb(len(scene.triangles)) + 8 * 8 * FRAME_PIXEL_BYTES / 2 ** 20 + MIN_WORKING_MB)
+    assert render(scene, Settings(memory_budget_mb=least, aa_samples=1)).combined[..., 0].max() >= 0.0
 
 
 class CancelAfter(Progress):

@@ -88,8 +88,9 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
     height, width = camera.window_shape
     n_pixels = height * width
     stats: dict = {"triangles": len(scene.triangles), "lights": scene.light_count, "pixels": n_pixels}
-    # The frame's own arrays are paid from the budget first; the batches and bands work within the rest.
-    working_mb = working_budget_mb(settings.memory_budget_mb, height, width)
+    # The frame's own arrays and the geometry's structures are paid from the budget first (a scene too large
+    # for it fails here, before any of them is built); the batches and bands work within the rest.
+    working_mb = working_budget_mb(settings.memory_budget_mb, height, width, len(scene.triangles))
     stats["working_budget_mb"] = working_mb
     settings = settings.replace(memory_budget_mb=working_mb)
     if scene.light_count == 0:
@@ -185,15 +186,34 @@ FRAME_PIXEL_BYTES = 112
 MIN_WORKING_MB = 8.0
 
 
-def working_budget_mb(memory_budget_mb: float, height: int, width: int) -> float:
+# Bytes per triangle of the ray tracer (Embree's BVH and its float32 copy), the edge tree and their builds'
+# temporaries, at their peak: measured 1,640 and 1,600 (0.5 and 1 million triangles, 2026-12-05).
+GEOMETRY_TRIANGLE_BYTES = 1700
+
+
+def geometry_mb(triangles: int) -> float:
+    """What the geometry's structures of a scene of ``triangles`` triangles take at their peak, MB."""
+    return triangles * GEOMETRY_TRIANGLE_BYTES / 2 ** 20
+
+
+def working_budget_mb(memory_budget_mb: float, height: int, width: int, triangles: int = 0) -> float:
     """The memory budget (MB) left for bands and batches once a ``width`` x ``height`` frame's own arrays
-    (FRAME_PIXEL_BYTES a pixel) are paid. Raises MemoryError, naming the least budget that renders, when
-    less than MIN_WORKING_MB would be left."""
+    (FRAME_PIXEL_BYTES a pixel) and the geometry's structures (``geometry_mb``) are paid. Raises
+    MemoryError, naming the least budget that renders, when less than MIN_WORKING_MB would be left (so a
+    scene too large for the budget stops with a message, not at the operating system's out-of-memory
+    killer)."""
     frame_mb = height * width * FRAME_PIXEL_BYTES / 2 ** 20
-    working = memory_budget_mb - frame_mb
+    mesh_mb = geometry_mb(triangles)
+    working = memory_budget_mb - frame_mb - mesh_mb
     if working < MIN_WORKING_MB:
+        least = np.ceil(frame_mb + mesh_mb + MIN_WORKING_MB)
+        if mesh_mb > frame_mb:
+            raise MemoryError(f"memory budget of {memory_budget_mb:g} MB is too small for {triangles:,} triangles "
+                              f"(at least {least:.0f} MB: {mesh_mb:.0f} MB for the ray tracer and the edge tree, "
+                              f"{frame_mb:.0f} MB for the {width} x {height} frame's passes, {MIN_WORKING_MB:g} MB "
+                              "to work in); raise it or simplify the meshes")
         raise MemoryError(f"memory budget of {memory_budget_mb:g} MB is too small for a {width} x {height} "
-                          f"frame (at least {np.ceil(frame_mb + MIN_WORKING_MB):.0f} MB: {frame_mb:.0f} MB for "
+                          f"frame (at least {least:.0f} MB: {frame_mb:.0f} MB for "
                           f"its passes, {MIN_WORKING_MB:g} MB to work in); raise it")
     return working
 
