@@ -61,7 +61,12 @@ from .terminator import compile_terminator
 # a query's receivers share the walk down the edge tree, each sub-group dropping the nodes and edges that
 # are a silhouette nowhere in its box.
 GROUP_POINTS = 16
-SUB_POINTS = 4
+# Sub-groups of 4 dropped an edge that one receiver needed (a box's top inside a torus emitter's hole, one
+# light per face: 9.42 where the reference gives 0.072, and only at some batch sizes; found 2026-12-05 when
+# the memory budget's share changed the batches): until the sub-group test is shown conservative each
+# couple is its own sub-group (its hull the tightest), which costs 3-6 % (boxes 512 px 2.39 -> 2.52 s,
+# suzanne_dense3 256 px 1.99 -> 2.11 s, tree 256 px 3.35 -> 3.45 s, chairs the same).
+SUB_POINTS = 1
 # Arcs per chunk of couples whose detection, regions, depths, arrangement and integrals are worked out
 # together (about 7 MB of arcs).
 ARC_CHUNK = 1 << 16
