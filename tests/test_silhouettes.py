@@ -74,7 +74,10 @@ def test_dense_sphere_over_a_floor_matches_the_reference():
     image, reference = exact(scene)
     assert_exact(image, reference)
     out = render(scene, CENTRES)
-    assert out.stats["arcs"] < 0.2 * out.stats["edge_tests"]  # most candidates are no silhouette
+    # Every arc passed an exact test, and the edge tree's culling left few tests: under 5 % of every
+    # (edge record, pixel) pair (0.7 % measured; with sub-groups of receivers off each couple's own hull
+    # culls, so nearly every test found an arc: 1,461 of 1,551).
+    assert 0 < out.stats["arcs"] <= out.stats["edge_tests"] < 0.05 * out.stats["edge_records"] * out.stats["pixels"]
     assert 0 < out.stats["max_blockers_per_couple"] < 40     # arcs per couple, of 370 triangles
     assert (out.blocker_count > 0).any()
 
