@@ -7,8 +7,9 @@ against its own exact reference integrator, and the time Cycles needs for the sa
 
 Per .blend and width (the height follows the .blend's aspect), measured:
 - LazyVis at the settings a Blender user gets (the engine's ``settings_from_scene``: the .blend's LazyVis
-  panel and Cycles' pixel filter; the sample .blends carry 16 anti-aliasing samples and filter width
-  0.01 px, which ``--filter-width`` overrides for both renderers): full-frame wall time (fastest of
+  panel and Cycles' pixel filter; the sample .blends carry 16 anti-aliasing samples and, since
+  2026-12-06, Blender's default filter width 1.5 px (0.01 px before: the README's tables), which
+  ``--filter-width`` overrides for both renderers): full-frame wall time (fastest of
   ``--repeats``), seconds per stage, the stats counters, and the PROCESS peak memory (ru_maxrss: the
   largest of this render and all before it; every full-frame LazyVis render runs before any other).
 - error: relative RMSE of RGB (RMSE / RMS of the reference) against ``integrator="reference"`` (every
