@@ -237,6 +237,27 @@ def _error_text(error: BaseException) -> str:
     return " ".join(text.split("\n")) or type(error).__name__
 
 
+def apply_overrides(scene, args: argparse.Namespace) -> None:
+    """The command line's overrides of ``scene`` (a bpy Scene), as Blender's own flags set them: the engine,
+    --resolution, --resolution-percentage, -t (0: Blender's automatic thread count), -s, -e, -j."""
+    render = scene.render
+    render.engine = ENGINE_ID
+    if args.resolution:
+        render.resolution_x, render.resolution_y = args.resolution
+    if args.resolution_percentage is not None:
+        render.resolution_percentage = args.resolution_percentage
+    if args.threads is not None:
+        render.threads_mode = "AUTO" if args.threads == 0 else "FIXED"
+        if args.threads > 0:
+            render.threads = args.threads
+    if args.frame_start is not None:
+        scene.frame_start = args.frame_start
+    if args.frame_end is not None:
+        scene.frame_end = args.frame_end
+    if args.frame_jump is not None:
+        scene.frame_step = args.frame_jump
+
+
 def render_command(args: argparse.Namespace) -> int:
     blend = Path(args.file).expanduser()
     if not blend.exists():
@@ -282,21 +303,7 @@ def render_command(args: argparse.Namespace) -> int:
         else:
             scene = bpy.context.scene
         render = scene.render
-        render.engine = ENGINE_ID
-        if args.resolution:
-            render.resolution_x, render.resolution_y = args.resolution
-        if args.resolution_percentage is not None:
-            render.resolution_percentage = args.resolution_percentage
-        if args.threads is not None:
-            render.threads_mode = "AUTO" if args.threads == 0 else "FIXED"
-            if args.threads > 0:
-                render.threads = args.threads
-        if args.frame_start is not None:
-            scene.frame_start = args.frame_start
-        if args.frame_end is not None:
-            scene.frame_end = args.frame_end
-        if args.frame_jump is not None:
-            scene.frame_step = args.frame_jump
+        apply_overrides(scene, args)
 
         if args.frames is not None:
             try:

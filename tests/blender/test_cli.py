@@ -97,6 +97,54 @@ def test_animation_range_and_frame_lists(scene, tmp_path):
     assert sorted(os.listdir(tmp_path / "l")) == ["h1.exr", "h3.exr"]
 
 
+def test_frame_jump_scene_resolution_and_threads_flags(scene, tmp_path):
+    """-j steps the range as Blender's frame_step; -S renders the named scene (another size than
+    the active one); --resolution sets the frame's size; -t 1 and -t 2 give the same image bit for bit."""
+    blend = save_small_scene(scene, tmp_path / "flags.blend", frames=(1, 5), animate=True)
+    result = lazyvis("render", blend, "-a", "-j", "2", "-o", tmp_path / "j" / "f_#.exr")
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert sorted(os.listdir(tmp_path / "j")) == ["f_1.exr", "f_3.exr", "f_5.exr"]
+    means = [read_exr(tmp_path / "j" / f"f_{frame}.exr")["RGBA"][..., :3].mean() for frame in (1, 3, 5)]
+    np.testing.assert_allclose(np.array(means) / means[0], [1.0, 3.0, 5.0], rtol=2e-3)  # each frame evaluated
+
+    second = bpy.data.scenes.new("Dim")  # the same objects, 16 x 12
+    second.render.engine = scene.render.engine
+    second.camera = scene.camera
+    for obj in scene.collection.objects:
+        second.collection.objects.link(obj)
+    second.render.resolution_x, second.render.resolution_y = 16, 12
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "two.blend"), copy=True)
+    for name, shape in ((scene.name, (24, 32)), ("Dim", (12, 16))):
+        result = lazyvis("render", tmp_path / "two.blend", "-S", name, "-f", "1", "-o", tmp_path / f"{name}.exr")
+        assert result.returncode == 0, result.stdout + result.stderr
+        assert read_exr(tmp_path / f"{name}.exr")["RGBA"].shape[:2] == shape
+    assert_clean_failure(lazyvis("render", tmp_path / "two.blend", "-S", "Nope", "-f", "1"), "has no scene 'Nope'")
+
+    images = []
+    for threads in (1, 2):
+        out = tmp_path / f"t{threads}.exr"
+        result = lazyvis("render", blend, "-f", "2", "--resolution", "40", "20", "-t", threads, "-o", out)
+        assert result.returncode == 0, result.stdout + result.stderr
+        assert "40 x 20" in result.stdout
+        images.append(read_exr(out)["RGBA"])
+    assert images[0].shape == (20, 40, 4)
+    np.testing.assert_array_equal(images[0], images[1])
+
+
+@pytest.mark.parametrize("threads, mode, count", [(0, "AUTO", 0), (3, "FIXED", 3)])
+def test_overrides_reach_the_settings(scene, threads, mode, count):
+    """What the flags set is what the engine's Settings read (threads: Blender's Performance > Threads)."""
+    from lazyvis_addon.blender.properties import settings_from_scene
+
+    args = cli.build_parser().parse_args(["render", "x.blend", "--resolution", "64", "48", "--resolution-percentage",
+                                          "50", "-t", str(threads), "-s", "2", "-e", "9", "-j", "3"])
+    cli.apply_overrides(scene, args)
+    render = scene.render
+    assert (render.resolution_x, render.resolution_y, render.resolution_percentage) == (64, 48, 50)
+    assert render.threads_mode == mode and settings_from_scene(scene).threads == count
+    assert (scene.frame_start, scene.frame_end, scene.frame_step) == (2, 9, 3)
+
+
 def test_default_output_is_the_files_own_path(scene, tmp_path):
     scene.render.filepath = "//frames/shot_"
     blend = save_small_scene(scene, tmp_path / "own.blend")
@@ -115,6 +163,24 @@ def test_multilayer_has_every_pass(scene, tmp_path):
     prefix = layer.name + "."
     assert {prefix + "Combined", prefix + "Depth.Z", prefix + "Blocker Count.X"} <= set(channels)
     assert (tmp_path / "p.png").is_file()
+
+
+def test_png_preview_is_the_exr_in_srgb(scene, tmp_path):
+    """The --png preview, decoded by Blender's own PNG reader, is the EXR's colour through the sRGB transfer
+    (Blender's Standard view), row for row; and the transfer is the closed form at known values."""
+    from lazyvis_addon.core.png import linear_to_srgb8
+
+    blend = save_small_scene(scene, tmp_path / "png.blend")
+    result = lazyvis("render", blend, "-f", "1", "-o", tmp_path / "f.exr", "--png", tmp_path / "f.png")
+    assert result.returncode == 0, result.stdout + result.stderr
+    exr = read_exr(tmp_path / "f.exr")["RGBA"][..., :3]
+    image = bpy.data.images.load(str(tmp_path / "f.png"))
+    assert tuple(image.size) == (32, 24) and image.depth in (24, 32)
+    pixels = np.array(image.pixels[:], np.float32).reshape(24, 32, image.channels)[::-1, :, :3]  # bottom row first
+    np.testing.assert_array_equal(np.round(pixels * 255.0).astype(np.uint8), linear_to_srgb8(exr))
+    assert 0.05 < pixels.mean() < 0.95  # a lit image, not black or clipped
+    linear = np.array([[[0.0, 0.0031308, 0.5], [1.0, 2.0, np.nan]]])
+    assert linear_to_srgb8(linear).tolist() == [[[0, 10, 188], [255, 255, 0]]]  # 12.92 x 0.0031308 x 255 = 10.3
 
 
 # -- errors: one line, non-zero status, no traceback ---------------------------------------------------------
@@ -175,6 +241,28 @@ def test_ctrl_c_cancels_without_writing(tmp_path):
     assert process.returncode == 130, stderr
     assert "interrupted" in stderr and "Traceback" not in stderr
     assert not output.exists()
+
+
+def test_ctrl_c_in_a_multi_frame_run_keeps_the_finished_frames(tmp_path):
+    """SIGINT while frame 2 of 3 renders: status 130, frame 1 written whole, frames 2 and 3 not at all."""
+    process = subprocess.Popen([sys.executable, "-m", "lazyvis_addon.cli", "render",
+                                str(ROOT / "sample_blends" / "suzanne.blend"), "-s", "1", "-e", "3",
+                                "-o", str(tmp_path / "f_#.exr")],
+                               cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 180
+        for line in process.stderr:  # stage lines: wait until frame 2's core is at work
+            if ("Frame 2" in line and "Illumination" in line) or time.monotonic() > deadline:
+                break
+        process.send_signal(signal.SIGINT)
+        stdout, stderr = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == 130, stderr
+    assert "interrupted" in stderr and "Traceback" not in stderr
+    assert sorted(os.listdir(tmp_path)) == ["f_1.exr"]
+    assert read_exr(tmp_path / "f_1.exr")["RGBA"].shape == (512, 512, 4)
 
 
 # -- in-process: the pure helpers ------------------------------------------------------------------------

@@ -318,6 +318,43 @@ def test_nan_vertex_is_an_error_through_report(scene, capfd):
     assert "Traceback" not in capfd.readouterr().err
 
 
+def test_depth_and_normal_passes_are_cycles(scene, tmp_path):
+    """The real core's Depth (planar distance from the camera, m) and Normal (world shading normal) passes
+    against Cycles' on a tilted plane and a smooth sphere, pixel centres both (filter 0.01 px, Cycles at one
+    sample: its passes are those of the surface at the centre): equal where both see the same surface, and
+    the background at the same pixels."""
+    from blender_helpers import cycles_reference_tool
+
+    add_camera(scene)
+    bpy.ops.mesh.primitive_plane_add(size=6.0, rotation=(0.3, -0.2, 0.0))
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=0.8, location=(0.4, 0.3, 1.0))
+    bpy.ops.object.shade_smooth()
+    add_area_light(location=(0.0, 0.0, 3.0), size=1.0, energy=20.0)
+    scene.render.resolution_x, scene.render.resolution_y = 48, 36
+    layer = scene.view_layers[0]
+    layer.use_pass_z = layer.use_pass_normal = True
+    scene.cycles.filter_width = 0.01
+    prefix = layer.name + "."
+
+    def passes(path):
+        channels = render_to_exr(scene, path, multilayer=True)
+        normal = np.stack([channels[prefix + f"Normal.{axis}"] for axis in "XYZ"], axis=2)
+        return channels[prefix + "Depth.Z"], normal, channels[prefix + "Combined"][..., 3]
+
+    depth, normal, alpha = passes(tmp_path / "lazyvis.exr")
+    cycles_reference_tool().configure_cycles(scene, samples=1, seed=1, filter_width=0.01)
+    scene.render.film_transparent = True  # alpha says where Cycles hit something
+    cycles_depth, cycles_normal, cycles_alpha = passes(tmp_path / "cycles.exr")
+    hit = cycles_alpha > 0.5
+    assert 0.3 < hit.mean() < 1.0  # the plane does not fill the frame
+    assert (hit == (depth < 1e9)).mean() > 0.98  # the same pixels see something (an outline may differ)
+    both = hit & (depth < 1e9)
+    close = np.abs(depth - cycles_depth) < 1e-4 * cycles_depth
+    close &= np.abs(normal - cycles_normal).max(axis=2) < 1e-3
+    assert close[both].mean() > 0.97, close[both].mean()  # silhouette pixels: either surface
+    assert np.abs(np.linalg.norm(normal[both], axis=1) - 1.0).max() < 1e-4
+
+
 def test_transparent_film_clears_background_alpha(scene, tmp_path):
     add_camera(scene)
     # A plane ~15 px across: its centre pixel lies beyond the 1.5 px filter's reach of the background,
