@@ -279,12 +279,46 @@ def test_principled_default_darkens_diffuse_by_a_few_percent():
 
 
 def test_metal_is_the_f82_closure():
+    """Principled metallic 1 against a microfacet BRDF written out here from the formulas (not through
+    ``ggx``): D GGX, Smith's height-correlated G2 with Λ, and Hoffman's F82-tint Fresnel, whose b makes
+    F(1/7) = tint · Schlick(1/7); a coloured edge tint, so the F82 term is not 0. Then Multiscatter GGX
+    only scales the lobe by a factor of the view alone, above 1, towards 1 for a smooth metal."""
     rng = np.random.default_rng(4)
     wi, wo = rng.normal(size=(200, 3)), rng.normal(size=(200, 3))
     wi[:, 2], wo[:, 2] = np.abs(wi[:, 2]), np.abs(wo[:, 2])
     wi /= np.linalg.norm(wi, axis=1, keepdims=True)
     wo /= np.linalg.norm(wo, axis=1, keepdims=True)
-    base = (0.9, 0.6, 0.3)
-    metal = ggx.principled_bsdf(wi, wo, np.tile(UP, (200, 1)), 0.35, base, metallic=1.0)
-    expected = ggx.ggx_brdf(wi, wo, np.tile(UP, (200, 1)), 0.35, ggx.PrincipledMetal(base))
-    assert np.allclose(metal, expected)
+    base, tint, roughness = np.array([0.9, 0.6, 0.3]), np.array([0.7, 0.85, 1.0]), 0.35
+    normal = np.tile(UP, (200, 1))
+    metal = ggx.principled_bsdf(wi, wo, normal, roughness, base, metallic=1.0, specular_tint=tint,
+                                multiscatter=False)
+
+    alpha = roughness ** 2
+    half = (wi + wo) / np.linalg.norm(wi + wo, axis=1, keepdims=True)
+    cos_h, cos_i, cos_o = half[:, 2], wi[:, 2], wo[:, 2]
+    d = alpha ** 2 / (np.pi * (cos_h ** 2 * (alpha ** 2 - 1.0) + 1.0) ** 2)
+
+    def smith_lambda(cos):
+        return 0.5 * (np.sqrt(1.0 + alpha ** 2 * (1.0 - cos ** 2) / cos ** 2) - 1.0)
+
+    g2 = 1.0 / (1.0 + smith_lambda(cos_i) + smith_lambda(cos_o))
+    mu = np.sum(half * wo, axis=1)[:, None]
+
+    def schlick(m):
+        return base + (1.0 - base) * (1.0 - m) ** 5
+
+    m82 = 1.0 / 7.0
+    b = (schlick(m82) - tint * schlick(m82)) / (m82 * (1.0 - m82) ** 6)
+    fresnel = np.clip(schlick(mu) - b * mu * (1.0 - mu) ** 6, 0.0, 1.0)
+    expected = fresnel * (d * g2 / (4.0 * cos_i * cos_o))[:, None]
+    np.testing.assert_allclose(metal, expected, rtol=1e-9, atol=1e-12)
+    assert np.abs(fresnel - schlick(mu)).max() > 0.01  # the tint's term is there
+
+    # Multiscatter: one factor per view direction (the same wo with other wi), > 1, ~1 when smooth.
+    wo_one = np.tile(wo[:1], (200, 1))
+    for r, low, high in ((0.35, 1.0, 1.5), (0.05, 1.0, 1.001)):
+        ms = ggx.principled_bsdf(wi, wo_one, normal, r, base, metallic=1.0, specular_tint=tint)
+        ss = ggx.principled_bsdf(wi, wo_one, normal, r, base, metallic=1.0, specular_tint=tint, multiscatter=False)
+        lit = ss[:, 0] > 1e-12
+        ratio = ms[lit] / ss[lit]
+        assert np.ptp(ratio, axis=0).max() < 1e-9 and low < ratio.min() and ratio.max() < high, (r, ratio[0])

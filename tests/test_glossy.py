@@ -125,13 +125,16 @@ def test_glossy_mc_converges_to_the_same_bsdf_as_standard_mc(roughness):
     assert reduced[highlight(reduced)].mean() > 2.0 * reduced[lit].mean()  # there is a highlight
 
 
-@pytest.mark.parametrize("roughness, tolerance", [(0.3, 0.03), (0.5, 0.04), (0.8, 0.06)])
-def test_ltc_and_phong_against_glossy_mc(roughness, tolerance):
+@pytest.mark.parametrize("roughness, tolerance, phong_range", [(0.3, 0.03, (0.18, 0.26)), (0.5, 0.04, (0.24, 0.33)),
+                                                              (0.8, 0.06, (0.09, 0.16))])
+def test_ltc_and_phong_against_glossy_mc(roughness, tolerance, phong_range):
     """Analytic glossy integrals against the unbiased MC over the same visible pieces, on a pure Glossy
     BSDF plane (the whole image is the lobe). LTC: mean absolute error within ``tolerance`` of the mean
     highlight (measured 1.3%, 2.2%, 4.8%: view angles here are 35-60°, where tests/test_ltc.py measures a few
     percent of the lobe's albedo). Phong mode renders the paper's Phong lobe with a peak-matched exponent, a
-    different BRDF from Cycles' GGX: measured 22%, 29% and 13% off, so it is only held to 35%."""
+    different BRDF from Cycles' GGX: measured 22.0%, 28.6% and 12.5% off, held to within about a sixth of
+    that either way (``phong_range``): a Phong mode that quietly rendered the GGX lobe, or a broken Phong
+    lobe, leaves the range (the closed forms themselves are ``tests/test_phong.py``'s)."""
     scene = glossy_plane(glossy_only(roughness))
     mc = render(scene, CENTRES.replace(glossy_integrator="mc", mc_samples=1024)).combined[..., :3]
     ltc = render(scene, CENTRES.replace(glossy_integrator="ltc")).combined[..., :3]
@@ -142,7 +145,7 @@ def test_ltc_and_phong_against_glossy_mc(roughness, tolerance):
     phong_error = np.abs(phong - mc)[bright].mean() / scale
     print(f"roughness {roughness}: LTC {100 * ltc_error:.1f}%, Phong {100 * phong_error:.1f}% of the highlight")
     assert ltc_error < tolerance
-    assert phong_error < 0.35
+    assert phong_range[0] < phong_error < phong_range[1]
 
 
 def test_specular_shadow_appears_in_the_highlight():
