@@ -223,6 +223,19 @@ def test_window_renders_the_same_pixels_as_the_full_frame(boxes_scene):
 PASSES = ("combined", "depth", "normal", "sample_count", "blocker_count", "umbra")
 
 
+def test_thread_count_and_pixel_batch_do_not_change_the_image():
+    """One thread or two, pass 2's batches of 16384 pixels or of 97 (odd, so batches split detection groups,
+    cells and anti-aliased pixels' samples differently): every pass the same bit for bit, at the default
+    settings (anti-aliasing on)."""
+    scene = demo_scenes.floating_boxes(resolution=48, n_boxes=9)
+    reference = render(scene, Settings(threads=1))
+    assert reference.stats["aa_pixels"] > 50
+    for settings in (Settings(threads=2), Settings(threads=2, pixel_batch=97), Settings(threads=1, pixel_batch=97)):
+        out = render(scene, settings)
+        for name in PASSES:
+            np.testing.assert_array_equal(getattr(out, name), getattr(reference, name), err_msg=f"{name} {settings}")
+
+
 @pytest.mark.parametrize("working_mb", [8.0, 12.0])
 def test_bands_of_rows_render_the_same_pixels_as_one_band(working_mb):
     """A smaller memory budget shades the frame in more bands of rows: the image and every pass stay the
