@@ -350,6 +350,34 @@ def _square(centre, half, height=1.0):
                       [x - half, y + half, height]])
 
 
+@pytest.mark.parametrize("roughness", [0.2, 0.3])
+def test_the_correction_recovers_the_lobe_at_grazing_views(roughness):
+    """Lobes seen at grazing views (a glossy floor's far part): plain LTC loses most of a large light's lobe,
+    40-75 % of it at 85 degrees, and the correction brings it back (measured at 0.2: -0.6 % overhead,
+    +6.3 % for a light ahead, off the mirror direction; at 0.3: -1.4 %, -0.6 %), while near the mirror
+    direction, where LTC is close, the correction stays within 1 % of the quadrature too. (Below roughness
+    0.2 the default is plain LTC: run from 0.1, the same rule gave +0.5 % and +10.6 % where LTC gives -72 %
+    and -40 %, but 1.9 % against Cycles on the glossy floor at 35-60 degrees where plain LTC gives 1.0 %:
+    the rule is too coarse for the peak of so sharp a lobe, issue 16.)"""
+    for view_degrees in (80.0, 85.0):
+        view_angle = np.radians(view_degrees)
+        for polygon in (_square((0.0, 0.0), 3.0), _square((-4.0, 0.0), 2.0)):  # overhead; ahead, off the mirror
+            ltc, corrected, reference = _lobe_integrals(roughness, view_angle, polygon)
+            ltc_error, error = abs(ltc / reference - 1), abs(corrected / reference - 1)
+            assert error < 0.08, (view_degrees, corrected / reference)
+            # Where LTC is close the rule may cost up to 1.5 % (at 80 degrees ahead, 0.2: -10 % -> +1.5 %); where
+            # LTC has lost a fifth of the lobe or more, the correction is at least 3 times closer.
+            assert error < 0.015 if ltc_error < 0.02 else ltc_error < 0.2 or error < ltc_error / 3, \
+                (view_degrees, ltc / reference, corrected / reference)
+    worst = 0.0
+    for view_angle in np.radians([0.0, 30.0, 60.0]):
+        mirror = -np.tan(view_angle)
+        for polygon in (_square((mirror, 0.0), 0.1), _square((mirror, 0.0), 1.5)):
+            _, corrected, reference = _lobe_integrals(roughness, view_angle, polygon)
+            worst = max(worst, abs(corrected / reference - 1))
+    assert worst < 0.01, worst
+
+
 @pytest.mark.parametrize("roughness", [0.3, 0.5, 0.8, 1.0])
 def test_the_corrected_lobe_integral_is_within_a_percent_where_ltc_is_not(roughness):
     """Over a grid of views (0-80 degrees) and polygons (small, large, off the mirror direction, a wall cut by
