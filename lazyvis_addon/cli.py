@@ -3,6 +3,7 @@
     lazyvis render scene.blend -f 1 -o out.exr            # frame 1 -> out.exr
     lazyvis render scene.blend -a -o out/frame_####.exr   # the file's frame range, out/frame_0001.exr, ...
     lazyvis render scene.blend -s 10 -e 20 -o out/f##.exr --png out/f##.png --resolution-percentage 25
+    lazyvis compare scene.blend -o compare.png --json compare.json   # against Cycles (``compare``)
 
 does what ``blender -b scene.blend -E LAZYVIS -f 1 -o out.exr`` does with a Blender install: the add-on
 is registered, the file opened, its scene's engine set to LAZYVIS, the frame set and rendered (compositor
@@ -258,23 +259,29 @@ def apply_overrides(scene, args: argparse.Namespace) -> None:
         scene.frame_step = args.frame_jump
 
 
-def render_command(args: argparse.Namespace) -> int:
-    blend = Path(args.file).expanduser()
+def render_command_checks(file: str) -> Path:
+    """The .blend ``file`` names, checked readable (else a CliError), with bpy importable."""
+    blend = Path(file).expanduser()
     if not blend.exists():
-        raise CliError(f"no such file: {args.file}")
+        raise CliError(f"no such file: {file}")
     if blend.is_dir():
-        raise CliError(f"{args.file} is a folder, not a .blend file")
+        raise CliError(f"{file} is a folder, not a .blend file")
     try:
         readable = is_blend_file(blend)
     except OSError as error:
-        raise CliError(f"cannot read {args.file}: {error.strerror or error}") from None
+        raise CliError(f"cannot read {file}: {error.strerror or error}") from None
     if not readable:
-        raise CliError(f"{args.file} is not a .blend file")
-
+        raise CliError(f"{file} is not a .blend file")
     try:
-        import bpy
+        import bpy  # noqa: F401
     except ImportError as error:
-        raise CliError(f"lazyvis render needs Blender as a Python module (pip install bpy): {error}") from None
+        raise CliError(f"{PROG} needs Blender as a Python module (pip install bpy): {error}") from None
+    return blend
+
+
+def render_command(args: argparse.Namespace) -> int:
+    blend = render_command_checks(args.file)
+    import bpy
     from .blender import engine as engine_module
     from .core.exr import read_exr
     from .core.png import linear_to_srgb8, write_png
@@ -411,6 +418,26 @@ def build_parser() -> argparse.ArgumentParser:
                         help="override the resolution scale, 1-32767 %% (e.g. 10 for a quick look)")
     render.add_argument("-t", "--threads", type=int, metavar="N", help="render threads (0 = one per core)")
     render.set_defaults(handler=render_command)
+    compare = commands.add_parser(
+        "compare", help="LazyVis against Cycles on one frame: a side-by-side PNG with error maps, and figures",
+        description="Render a .blend with LazyVis, then with Cycles (direct light only) as a reference, at "
+                    "LazyVis' time and at LazyVis' error (or 1 %%); write the three images over their error "
+                    "maps to a PNG and print the times and errors.")
+    compare.add_argument("file", metavar="FILE.blend")
+    compare.add_argument("-o", "--output", metavar="PATH", default="compare.png", help="the PNG (default compare.png)")
+    compare.add_argument("--json", metavar="PATH", help="also write the figures as JSON")
+    compare.add_argument("--reference-samples", type=int, default=1024, metavar="N",
+                         help="Cycles samples of the reference the errors are measured against (default 1024)")
+    compare.add_argument("-f", "--frame", type=int, metavar="N", help="frame (default: the file's current frame)")
+    compare.add_argument("--resolution", type=int, nargs=2, metavar=("W", "H"), help="override the resolution")
+    compare.add_argument("--resolution-percentage", type=int, metavar="P", help="override the resolution scale")
+    compare.add_argument("-t", "--threads", type=int, metavar="N", help="render threads (0 = one per core)")
+
+    def run_compare(args):
+        from .compare import compare_command
+        return compare_command(args, sys.modules[__name__])
+
+    compare.set_defaults(handler=run_compare, frame_start=None, frame_end=None, frame_jump=None)
     return parser
 
 
@@ -423,6 +450,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--resolution must be at least 4 x 4")
     if getattr(args, "threads", None) is not None and args.threads < 0:
         parser.error("--threads must be 0 or more")
+    if getattr(args, "reference_samples", None) is not None and args.reference_samples < 64:
+        parser.error("--reference-samples must be at least 64")
     try:
         return args.handler(args)
     except CliError as error:
