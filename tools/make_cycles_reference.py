@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from pathlib import Path
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
@@ -33,23 +34,18 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 
 
 def configure_cycles(scene, samples: int, seed: int, threads: int = 0, filter_width: float = 0.01) -> None:
-    """Cycles settings of a direct-light reference (radiometry.md); ``filter_width`` the Blackman-Harris
-    pixel filter's radius (0.01, a point sample at the pixel centre, unless a test compares filtered
-    images: Blender's default is 1.5)."""
-    scene.render.engine = "CYCLES"
-    cycles = scene.cycles
-    cycles.device = "CPU"
-    cycles.samples = samples
-    cycles.use_adaptive_sampling = False
-    cycles.use_denoising = False
-    cycles.max_bounces = 0
-    cycles.pixel_filter_type = "BLACKMAN_HARRIS"
-    cycles.filter_width = filter_width
-    cycles.light_sampling_threshold = 0.0
-    cycles.sample_clamp_direct = 0.0
-    cycles.sample_clamp_indirect = 0.0
-    cycles.seed = seed
-    cycles.use_animated_seed = False
+    """Cycles settings of a direct-light reference (radiometry.md; ``lazyvis compare`` uses the same,
+    ``lazyvis_addon.compare.configure_direct_cycles``); ``filter_width`` the Blackman-Harris pixel filter's
+    radius (0.01, a point sample at the pixel centre, unless a test compares filtered images: Blender's
+    default is 1.5)."""
+    root = str(Path(__file__).resolve().parents[1])
+    if root not in sys.path:  # run inside a Blender install, the add-on's package beside this folder
+        sys.path.insert(0, root)
+    from lazyvis_addon.compare import configure_direct_cycles
+
+    configure_direct_cycles(scene, samples, seed)
+    scene.cycles.pixel_filter_type = "BLACKMAN_HARRIS"
+    scene.cycles.filter_width = filter_width
     scene.render.threads_mode = "FIXED" if threads > 0 else "AUTO"
     if threads > 0:
         scene.render.threads = threads

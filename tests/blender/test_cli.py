@@ -222,16 +222,15 @@ def test_bad_frame_list_and_bad_arguments(scene, tmp_path):
     assert usage.returncode == 2 and "not allowed with" in usage.stderr
 
 
-def test_ctrl_c_cancels_without_writing(tmp_path):
-    """SIGINT during the render: exit status 130, 'interrupted', and no image for the frame."""
-    output = tmp_path / "cancelled.exr"
-    process = subprocess.Popen([sys.executable, "-m", "lazyvis_addon.cli", "render",
-                                str(ROOT / "sample_blends" / "suzanne.blend"), "-f", "1", "-o", str(output)],
+def interrupted_render(args, ready, seconds=120) -> str:
+    """``lazyvis render ARGS`` sent SIGINT once a stage line of stderr satisfies ``ready``: asserts the clean
+    interrupt (status 130, 'interrupted', no traceback) and returns stderr."""
+    process = subprocess.Popen([sys.executable, "-m", "lazyvis_addon.cli", "render", *map(str, args)],
                                cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        deadline = time.monotonic() + 120
+        deadline = time.monotonic() + seconds
         for line in process.stderr:  # stage lines: wait until the core is at work
-            if "Illumination" in line or time.monotonic() > deadline:
+            if ready(line) or time.monotonic() > deadline:
                 break
         process.send_signal(signal.SIGINT)
         _, stderr = process.communicate(timeout=60)
@@ -240,27 +239,21 @@ def test_ctrl_c_cancels_without_writing(tmp_path):
             process.kill()
     assert process.returncode == 130, stderr
     assert "interrupted" in stderr and "Traceback" not in stderr
+    return stderr
+
+
+def test_ctrl_c_cancels_without_writing(tmp_path):
+    """SIGINT during the render: exit status 130, 'interrupted', and no image for the frame."""
+    output = tmp_path / "cancelled.exr"
+    interrupted_render([ROOT / "sample_blends" / "suzanne.blend", "-f", "1", "-o", output],
+                       lambda line: "Illumination" in line)
     assert not output.exists()
 
 
 def test_ctrl_c_in_a_multi_frame_run_keeps_the_finished_frames(tmp_path):
     """SIGINT while frame 2 of 3 renders: status 130, frame 1 written whole, frames 2 and 3 not at all."""
-    process = subprocess.Popen([sys.executable, "-m", "lazyvis_addon.cli", "render",
-                                str(ROOT / "sample_blends" / "suzanne.blend"), "-s", "1", "-e", "3",
-                                "-o", str(tmp_path / "f_#.exr")],
-                               cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        deadline = time.monotonic() + 180
-        for line in process.stderr:  # stage lines: wait until frame 2's core is at work
-            if ("Frame 2" in line and "Illumination" in line) or time.monotonic() > deadline:
-                break
-        process.send_signal(signal.SIGINT)
-        stdout, stderr = process.communicate(timeout=60)
-    finally:
-        if process.poll() is None:
-            process.kill()
-    assert process.returncode == 130, stderr
-    assert "interrupted" in stderr and "Traceback" not in stderr
+    interrupted_render([ROOT / "sample_blends" / "suzanne.blend", "-s", "1", "-e", "3", "-o", tmp_path / "f_#.exr"],
+                       lambda line: "Frame 2" in line and "Illumination" in line, seconds=180)
     assert sorted(os.listdir(tmp_path)) == ["f_1.exr"]
     assert read_exr(tmp_path / "f_1.exr")["RGBA"].shape == (512, 512, 4)
 
