@@ -572,6 +572,27 @@ def test_command_line_demo_window_and_integrator_flags(tmp_path, capsys):
     assert "give a scene .npz or --demo" in capsys.readouterr().err
 
 
+def test_command_line_window_keeps_the_cameras_clip_distances(tmp_path):
+    """``--window`` changes the camera's window only: a clip start that hides the near boxes stays (it was
+    dropped, the camera rebuilt from six of its fields)."""
+    from lazyvis_addon.core.__main__ import main
+    from lazyvis_addon.core.exr import read_exr
+
+    scene = demo_scenes.floating_boxes(resolution=24, n_boxes=4)
+    distance = float(np.linalg.norm(scene.camera.world_from_camera[:3, 3]))
+    scene.camera = dataclasses.replace(scene.camera, clip_start=0.9 * distance)
+    scene.save_npz(tmp_path / "clipped.npz")
+    assert main([str(tmp_path / "clipped.npz"), "-o", str(tmp_path / "w.exr"), "--window", "4", "4", "20", "20",
+                 "--edge-samples", "1"]) == 0
+    expected = render(dataclasses.replace(scene, camera=dataclasses.replace(scene.camera, window=(4, 4, 20, 20))),
+                      Settings(aa_samples=1))
+    unclipped = render(dataclasses.replace(scene, camera=dataclasses.replace(scene.camera, clip_start=0.0,
+                                                                                 window=(4, 4, 20, 20))),
+                       Settings(aa_samples=1))
+    assert not np.array_equal(expected.combined, unclipped.combined)  # the clip start matters here
+    np.testing.assert_array_equal(read_exr(tmp_path / "w.exr")["R"], expected.combined[..., 0])
+
+
 def test_blockers_without_a_cone_remove_nothing():
     """Pass 2 given blockers that pass 1 never stores (the receiver's own polygon, a coplanar neighbour,
     a blocker below the horizon): the light must stay whole."""

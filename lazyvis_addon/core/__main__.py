@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -19,16 +20,17 @@ from .film import FILTER_TYPES
 from .png import linear_to_srgb8, write_png
 from .progress import Progress, RenderCancelled
 from .render import RenderOutput, render
-from .scene import Camera, Scene
+from .scene import Scene
 from .settings import GLOSSY_INTEGRATORS, INTEGRATORS, VISIBILITY_METHODS, Settings
 
 
 class ConsoleProgress(Progress):
     """A one-line progress bar on stderr."""
 
-    def __init__(self, stream=sys.stderr) -> None:
+    def __init__(self, stream=None) -> None:
         super().__init__()
-        self.stream = stream
+        # stderr as it is when the bar is made (a default argument would keep the one of the first import)
+        self.stream = stream if stream is not None else sys.stderr
         self._last = 0.0
 
     def on_stage(self, name: str, total: int) -> None:
@@ -112,10 +114,8 @@ def main(argv=None) -> int:
         else:
             print("error: give a scene .npz or --demo NAME", file=sys.stderr)
             return 2
-        if args.window:
-            cam = scene.camera
-            scene.camera = Camera(cam.world_from_camera, cam.width, cam.height, cam.projection, cam.screen_window,
-                                  tuple(args.window))
+        if args.window:  # the camera as it is (its clip distances too), another window
+            scene.camera = dataclasses.replace(scene.camera, window=tuple(args.window))
         settings = Settings(integrator=args.integrator, glossy_integrator=args.glossy_integrator,
                             visibility=args.visibility,
                             shadow_rays=args.shadow_rays, verify_rays=args.verify_rays, mc_samples=args.samples,
