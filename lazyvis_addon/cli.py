@@ -259,7 +259,7 @@ def apply_overrides(scene, args: argparse.Namespace) -> None:
         scene.frame_step = args.frame_jump
 
 
-def render_command_checks(file: str) -> Path:
+def checked_blend(file: str) -> Path:
     """The .blend ``file`` names, checked readable (else a CliError), with bpy importable."""
     blend = Path(file).expanduser()
     if not blend.exists():
@@ -280,7 +280,7 @@ def render_command_checks(file: str) -> Path:
 
 
 def render_command(args: argparse.Namespace) -> int:
-    blend = render_command_checks(args.file)
+    blend = checked_blend(args.file)
     import bpy
     from .blender import engine as engine_module
     from .core.exr import read_exr

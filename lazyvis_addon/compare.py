@@ -121,7 +121,8 @@ def compare_scene(scene, reference_samples: int, folder: Path, log=print) -> tup
     scene.cycles.time_limit = lazyvis_seconds
     equal_time_seconds, equal_time = timed_render(scene, folder, "equal_time")
     target = max(lazyvis_error, 0.01)
-    samples = min(samples_for_error(fit, target), max(reference_samples // 4, 1))
+    most = max(reference_samples // 4, 1)
+    samples = min(samples_for_error(fit, target), most)
     configure_direct_cycles(scene, samples, seed=5)
     equal_error_seconds, equal_error = timed_render(scene, folder, "equal_error")
     scene.render.engine = engine
@@ -132,7 +133,7 @@ def compare_scene(scene, reference_samples: int, folder: Path, log=print) -> tup
         cycles_equal_time=dict(seconds=round(equal_time_seconds, 3), error=relative_rmse(equal_time, reference, noise)),
         cycles_equal_error=dict(samples=samples, seconds=round(equal_error_seconds, 3),
                                 error=relative_rmse(equal_error, reference, noise), target=target,
-                                capped=samples == max(reference_samples // 4, 1)),
+                                capped=samples == most),
         cycles_fit={str(s): e for s, e in fit.items()},
         speedup=round(equal_error_seconds / max(lazyvis_seconds, 1e-9), 3))
     top = np.concatenate([linear_to_srgb8(image) for image in (lazyvis, equal_time, equal_error)], axis=1)
@@ -148,34 +149,32 @@ def compare_command(args, cli) -> int:
 
     from .core.png import write_png
 
-    CliError, _error_text, apply_overrides = cli.CliError, cli._error_text, cli.apply_overrides
-    blend = cli.render_command_checks(args.file)
-    _register_addon = cli._register_addon
-    unregister = _register_addon()
+    blend = cli.checked_blend(args.file)
+    unregister = cli._register_addon()
     try:
         try:
             bpy.ops.wm.open_mainfile(filepath=str(blend.resolve()), load_ui=False)
         except RuntimeError as error:
-            raise CliError(f"cannot open {args.file}: {_error_text(error)}") from None
+            raise cli.CliError(f"cannot open {args.file}: {cli._error_text(error)}") from None
         scene = bpy.context.scene
-        apply_overrides(scene, args)
+        cli.apply_overrides(scene, args)
         if args.frame is not None:
             scene.frame_set(args.frame)
         with tempfile.TemporaryDirectory() as temporary:
             try:
                 figures, picture = compare_scene(scene, args.reference_samples, Path(temporary))
             except RuntimeError as error:
-                raise CliError(_error_text(error)) from None
+                raise cli.CliError(cli._error_text(error)) from None
     finally:
         unregister()
     output = Path(args.output)
     output.parent.mkdir(parents=True, exist_ok=True)
     write_png(output, picture)
     lazyvis, time_, error = figures["lazyvis"], figures["cycles_equal_time"], figures["cycles_equal_error"]
+    capped = ", capped at a quarter of the reference" if error["capped"] else ""
     print(f"LazyVis {lazyvis['seconds']:.2f} s, {100 * lazyvis['error']:.2f} % | Cycles in that time "
           f"{100 * time_['error']:.2f} % | Cycles to {100 * error['target']:.2f} %: {error['samples']} samples, "
-          f"{error['seconds']:.2f} s ({100 * error['error']:.2f} %{', capped at a quarter of the reference' if error['capped'] else ''}), "
-          f"{figures['speedup']:.1f}x LazyVis' time")
+          f"{error['seconds']:.2f} s ({100 * error['error']:.2f} %{capped}), {figures['speedup']:.1f}x LazyVis' time")
     print(f"Saved: '{output}' (top: LazyVis, Cycles at equal time, at equal error; below: their errors, white at "
           f"{100 * ERROR_MAP_TOP:.0f} % of the mean)")
     if args.json:
