@@ -341,7 +341,7 @@ def test_depth_and_normal_passes_are_cycles(scene, tmp_path):
         normal = np.stack([channels[prefix + f"Normal.{axis}"] for axis in "XYZ"], axis=2)
         return channels[prefix + "Depth.Z"], normal, channels[prefix + "Combined"][..., 3]
 
-    depth, normal, alpha = passes(tmp_path / "lazyvis.exr")
+    depth, normal, _ = passes(tmp_path / "lazyvis.exr")
     cycles_reference_tool().configure_cycles(scene, samples=1, seed=1, filter_width=0.01)
     scene.render.film_transparent = True  # alpha says where Cycles hit something
     cycles_depth, cycles_normal, cycles_alpha = passes(tmp_path / "cycles.exr")
