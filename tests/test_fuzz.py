@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 from fuzz_scenes import SceneRecipe, check_image, render_settings, scene_recipes
 from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from lazyvis_addon.core.demo_scenes import plane_under_light
 from lazyvis_addon.core.render import render
@@ -124,6 +125,29 @@ def test_any_scene_renders_a_finite_non_negative_image_or_fails_cleanly(recipe, 
 @given(scene_recipes(max_size=10))
 def test_default_integrator_agrees_with_reference_on_fuzzed_scenes(recipe):
     agreement(recipe)
+
+
+@settings(max_examples=max(1, int(60 * SCALE)), **PROFILE)
+@given(scene_recipes(max_size=24), st.sampled_from((0.01, 1.5, 4.0)), st.data())
+def test_any_window_is_the_frames_pixels(recipe, filter_width, data):
+    """A border render or a farm's tile: any window of any scene, at the default settings (anti-aliasing
+    on) under a point-like, Blender's default or a wide pixel filter, gives the full frame's pixels there,
+    every pass bit for bit."""
+    scene = recipe.build()
+    chosen = Settings(filter_width=filter_width, threads=1)
+    try:
+        full = render(scene, chosen)
+    except ValueError:
+        return
+    width, height = scene.camera.width, scene.camera.height
+    x0 = data.draw(st.integers(0, width - 1))
+    y0 = data.draw(st.integers(0, height - 1))
+    window = (x0, y0, data.draw(st.integers(x0 + 1, width)), data.draw(st.integers(y0 + 1, height)))
+    part = render(replace(scene, camera=replace(scene.camera, window=window)), chosen)
+    x0, y0, x1, y1 = window
+    for name in ("combined", "depth", "normal", "sample_count", "blocker_count", "umbra"):
+        np.testing.assert_array_equal(getattr(part, name), getattr(full, name)[y0:y1, x0:x1],
+                                      err_msg=f"{name} of window {window}: {recipe}")
 
 
 # Failures the fuzzer found, kept as fixed cases (issue 17: "every failure found becomes a fixed case").

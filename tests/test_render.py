@@ -17,6 +17,7 @@ from lazyvis_addon.core.blockers import BlockerPolygons
 from lazyvis_addon.core.demo_scenes import plane_under_light, quad_triangles
 from lazyvis_addon.core.geometry import light_frames
 from lazyvis_addon.core.illumination import analytic, outgoing_radiance, visible_pieces
+from lazyvis_addon.core.antialias import FULL_PROBE_PIXELS
 from lazyvis_addon.core.render import (FRAME_PIXEL_BYTES, MIN_WORKING_MB, _primary, band_rows_for, geometry_mb,
                                        working_budget_mb)
 from lazyvis_addon.core.settings import VISIBILITY_METHODS
@@ -203,24 +204,69 @@ def window_of(scene, window):
                  scene.background)
 
 
-def test_window_renders_the_same_pixels_as_the_full_frame(boxes_scene):
-    tile = window_of(boxes_scene, (20, 30, 60, 55))
-    for integrator in ("analytic", "reduced_mc", "standard_mc"):
-        # A margin as large as the frame makes pass 1 see everything the full frame sees: exact.
-        settings = CENTRES.replace(integrator=integrator, mc_samples=4, window_margin=80)
-        full = render(boxes_scene, settings)
-        part = render(tile, settings)
-        np.testing.assert_array_equal(part.combined, full.combined[30:55, 20:60])
-        np.testing.assert_array_equal(part.depth, full.depth[30:55, 20:60])
-        np.testing.assert_array_equal(part.blocker_count, full.blocker_count[30:55, 20:60])
-    # With the default margin (and anti-aliasing, marked from the window's own pixels) only blockers
-    # found far outside the window and the border ring's anti-aliasing can differ.
-    full = render(boxes_scene, Settings()).combined[30:55, 20:60, :3]
-    part = render(tile, Settings()).combined[..., :3]
-    assert relative_rmse(part, full) < 0.01
-
-
 PASSES = ("combined", "depth", "normal", "sample_count", "blocker_count", "umbra")
+
+
+def assert_window_is_frame(part, full, window, label=""):
+    """Every pass of a window's render equals the full frame's pixels there, bit for bit."""
+    x0, y0, x1, y1 = window
+    for name in PASSES:
+        np.testing.assert_array_equal(getattr(part, name), getattr(full, name)[y0:y1, x0:x1],
+                                      err_msg=f"{name} of window {window} {label}")
+
+
+def test_window_renders_the_same_pixels_as_the_full_frame(boxes_scene):
+    window = (20, 30, 60, 55)
+    tile = window_of(boxes_scene, window)
+    # The default settings (pass 2 by silhouettes, anti-aliasing with coverage rays and pooling): the
+    # window is rendered with the margin its anti-aliasing reads, and allocates samples at the frame's scale.
+    full = render(boxes_scene, Settings())
+    assert full.stats["aa_pixels"] > 100
+    assert_window_is_frame(render(tile, Settings()), full, window, "at the default settings")
+    for integrator in ("analytic", "reduced_mc", "standard_mc"):
+        # The blocker map's integrators without anti-aliasing: a margin as large as the frame makes pass 1
+        # see everything the full frame sees.
+        settings = CENTRES.replace(integrator=integrator, visibility="blocker_map", mc_samples=4, window_margin=80)
+        assert_window_is_frame(render(tile, settings), render(boxes_scene, settings), window, integrator)
+
+
+def tiles(width: int, height: int, columns: int, rows: int):
+    """Windows (x0, y0, x1, y1) of a columns x rows tiling of the frame, uneven where it does not divide."""
+    xs = np.linspace(0, width, columns + 1).round().astype(int)
+    ys = np.linspace(0, height, rows + 1).round().astype(int)
+    return [(xs[i], ys[j], xs[i + 1], ys[j + 1]) for j in range(rows) for i in range(columns)]
+
+
+@pytest.mark.parametrize("scene_name, size", [("floating_boxes", 96), ("fence", 272)])
+def test_tiles_stitch_into_the_full_frame(scene_name, size):
+    """A farm splits a default render into tiles: 2 x 2 and 3 x 5 tilings stitch into the full frame bit for
+    bit, every pass. The fence at 272 x 272 (73,984 pixels) takes its sample allocation from the probe's
+    patches spread over the frame, the boxes at 96 x 96 from every pixel of the frame."""
+    scene = getattr(demo_scenes, scene_name)(resolution=size)
+    width, height = scene.camera.width, scene.camera.height
+    full = render(scene, Settings())
+    assert full.stats["aa_pixels"] > 300
+    for columns, rows in ((2, 2), (3, 5)):
+        stitched = {name: np.zeros_like(getattr(full, name)) for name in PASSES}
+        for window in tiles(width, height, columns, rows):
+            x0, y0, x1, y1 = window
+            part = render(window_of(scene, window), Settings())
+            assert part.combined.shape[:2] == (y1 - y0, x1 - x0)
+            for name in PASSES:
+                stitched[name][y0:y1, x0:x1] = getattr(part, name)
+        for name in PASSES:
+            np.testing.assert_array_equal(stitched[name], getattr(full, name), err_msg=f"{name}, {columns} x {rows}")
+
+
+def test_the_probe_allocates_about_the_mean_asked_for():
+    """On a frame larger than FULL_PROBE_PIXELS the samples per unit contrast come from patches of 3 x 3
+    pixels spread over the frame: the anti-aliased pixels then draw about ``aa_samples`` on average, as the
+    exact share over all of them gives."""
+    scene = demo_scenes.fence(resolution=320)
+    assert scene.camera.width * scene.camera.height > FULL_PROBE_PIXELS
+    out = render(scene, Settings(aa_settle_tolerance=0.0))
+    drawn = out.sample_count[out.sample_count > 1]
+    assert abs(drawn.mean() / Settings().aa_samples - 1.0) < 0.2
 
 
 def test_thread_count_and_pixel_batch_do_not_change_the_image():

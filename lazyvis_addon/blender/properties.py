@@ -112,9 +112,10 @@ class LazyVisSceneSettings(bpy.types.PropertyGroup):
                              description="Pixels per batch: how often progress is shown and a cancel is seen")
     window_margin: IntProperty(name="Region Margin", default=_DEFAULTS.window_margin, min=0, soft_max=256,
                                subtype='PIXEL',
-                               description="When rendering a region (render border), blockers are also looked "
-                                           "for this many pixels around it, so that the region matches the "
-                                           "full frame")
+                               description="Blocker Map: when rendering a region (render border), blockers "
+                                           "are also looked for this many pixels around it, so that the region "
+                                           "matches the full frame (Silhouettes needs none: a region is always "
+                                           "the full frame's pixels)")
 
 
 class LazyVisViewLayerSettings(bpy.types.PropertyGroup):

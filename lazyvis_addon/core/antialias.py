@@ -157,13 +157,20 @@ def allocate_samples(contrast: np.ndarray, mean: int) -> np.ndarray:
     ``EDGE_SAMPLES_SPREAD * mean``; the proportional share is rescaled so that the mean stays ``mean``.
     On the fence (bench_antialias) this gives at 5 samples the error of 7 spread evenly.
     """
+    return samples_for(contrast, neyman_share(contrast, mean), mean)
+
+
+def neyman_share(contrast: np.ndarray, mean: int) -> float | None:
+    """Samples per unit of contrast (``allocate_samples``) that give the pixels of ``contrast`` (P,) ``mean``
+    samples on average once clipped, or None where every pixel simply gets ``mean`` (no room to spread,
+    no pixels, or no finite positive contrast)."""
     count = len(contrast)
     if count == 0 or mean <= 1:
-        return np.full(count, max(mean, 1), np.int64)
+        return None
     low, high = min(EDGE_SAMPLES_MIN, mean), EDGE_SAMPLES_SPREAD * mean
     weight = np.asarray(contrast, dtype=np.float64)
     if not np.isfinite(weight).all() or weight.sum() <= 0.0:
-        return np.full(count, mean, np.int64)
+        return None
     share = mean * count / weight.sum()
     for _ in range(8):  # fixed-point rescaling of the unclipped pixels: a few rounds settle it
         samples = np.clip(weight * share, low, high)
@@ -172,7 +179,82 @@ def allocate_samples(contrast: np.ndarray, mean: int) -> np.ndarray:
         if not free.any() or left <= 0.0:
             break
         share = left / weight[free].sum()
-    return np.clip(np.round(weight * share), low, high).astype(np.int64)
+    return float(share)
+
+
+def samples_for(contrast: np.ndarray, share: float | None, mean: int) -> np.ndarray:
+    """(P,) int64 samples of pixels of ``contrast`` (P,) at ``share`` samples per unit contrast, kept between
+    ``EDGE_SAMPLES_MIN`` and ``EDGE_SAMPLES_SPREAD * mean`` (``mean`` each where ``share`` is None, or a
+    contrast is not finite)."""
+    contrast = np.asarray(contrast, dtype=np.float64)
+    if share is None:
+        return np.full(len(contrast), max(mean, 1), np.int64)
+    low, high = min(EDGE_SAMPLES_MIN, mean), EDGE_SAMPLES_SPREAD * mean
+    counts = np.clip(np.round(np.nan_to_num(contrast * share, nan=mean, posinf=high)), low, high)
+    return counts.astype(np.int64)
+
+
+# The anti-aliasing scale of a frame (``FrameScale``) comes from every pixel of a frame of up to this many
+# pixels, and from PROBE_PATCHES patches of 3 x 3 pixels spread over a larger one.
+FULL_PROBE_PIXELS = 1 << 16
+PROBE_PATCHES = 1024
+
+
+@dataclass(frozen=True)
+class FrameScale:
+    """What anti-aliasing takes from the whole frame, the same for the frame and for any window of it, so
+    that a window's pixels are the frame's (a border render, a farm's tile).
+
+    radiance_floor : float   radiance steps below this never mark a pixel (1e-4 of the brightest centre).
+    share : float or None    samples per unit contrast (``neyman_share`` of the frame's marked pixels).
+    """
+
+    radiance_floor: float
+    share: float | None
+
+
+def probe_centres(width: int, height: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """Full-frame (x, y) of the centres of the probe's patches, (ny,) and (nx,)-shaped as a grid (rows
+    ``ys``, columns ``xs``), or None when the frame is small enough to be probed whole
+    (``FULL_PROBE_PIXELS``). The patches lie on a regular lattice, their 3 x 3 pixels inside the frame."""
+    if width * height <= FULL_PROBE_PIXELS or width < 3 or height < 3:
+        return None
+    stride = max(3, int(np.sqrt(width * height / PROBE_PATCHES)))
+    xs = np.arange(stride // 2, width - 1, stride, dtype=np.int64)
+    ys = np.arange(stride // 2, height - 1, stride, dtype=np.int64)
+    return np.maximum(xs, 1), np.maximum(ys, 1)
+
+
+def probe_pixels(xs: np.ndarray, ys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Full-frame (x, y) (3 ny * 3 nx,) int64 of the patches around ``probe_centres``, row-major over the
+    (3 ny, 3 nx) grid that puts the patches side by side (a patch's centre sees only its own 8 pixels
+    around it, so ``refine_mask`` and ``edge_contrast`` at the centres read the frame's own neighbours)."""
+    offsets = np.array([-1, 0, 1], np.int64)
+    grid_x = (xs[:, None] + offsets[None, :]).reshape(-1)
+    grid_y = (ys[:, None] + offsets[None, :]).reshape(-1)
+    x, y = np.meshgrid(grid_x, grid_y)
+    return x.reshape(-1), y.reshape(-1)
+
+
+def patch_scale(scene: Scene, index_triangle: np.ndarray, shading_normal: np.ndarray, seen: np.ndarray,
+                shape: tuple[int, int], settings: Settings) -> FrameScale:
+    """``FrameScale`` from the probe's patches: the brightest of their pixels sets the radiance floor, and
+    the centres that ``refine_mask`` marks within their patch give the share of their contrasts.
+
+    Parameters
+    ----------
+    index_triangle : (N,) int; shading_normal : (N, 3); seen : (N, 3) radiance with emission, of the
+    ``probe_pixels`` in their order; shape : (3 ny, 3 nx).
+    """
+    floor = 1e-4 * max(float(seen.max()) if seen.size else 0.0, 1e-30)
+    rows, columns = shape
+    material = _material(scene, index_triangle)
+    mask = refine_mask(index_triangle.reshape(shape), material.reshape(shape), shading_normal.reshape(rows, columns, 3),
+                       seen.reshape(rows, columns, 3), relative_threshold=settings.aa_threshold,
+                       normal_angle=settings.aa_threshold, radiance_floor=floor)
+    centre = (np.arange(1, rows, 3)[:, None] * columns + np.arange(1, columns, 3)[None, :]).reshape(-1)
+    marked = centre[mask.reshape(-1)[centre]]
+    return FrameScale(floor, neyman_share(edge_contrast(seen, shape, marked), settings.aa_samples))
 
 
 def _material(scene: Scene, index_triangle: np.ndarray) -> np.ndarray:

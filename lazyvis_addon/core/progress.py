@@ -60,11 +60,12 @@ class Progress:
             self.stage_seconds[self._stage] = self.stage_seconds.get(self._stage, 0.0) + elapsed
             self._stage = None
 
-    def nested(self) -> "Progress":
+    def nested(self, warnings: bool = True) -> "Progress":
         """A progress for work done as part of the current stage (anti-aliasing shading its samples by pass
         2): the stages it begins are not stages of their own (their time stays the current stage's), while
-        cancel and warnings still reach this one."""
-        return _Nested(self)
+        cancel and warnings (unless ``warnings`` is False: work that repeats what was warned of) still reach
+        this one."""
+        return _Nested(self, warnings)
 
     def warn(self, message: str) -> None:
         """A user-facing warning (dropped degenerate geometry, unsupported input)."""
@@ -104,9 +105,10 @@ class _Nested(Progress):
     """``Progress.nested``: stages and advances are the outer stage's; cancel and warnings go to the outer
     (whose ``check_cancel`` tells its own thread from the pool's)."""
 
-    def __init__(self, outer: Progress) -> None:
+    def __init__(self, outer: Progress, warnings: bool = True) -> None:
         super().__init__()
         self.outer = outer
+        self.forward_warnings = warnings
 
     def begin_stage(self, name: str, total: int = 0, done: int = 0) -> None:
         self.check_cancel()
@@ -118,7 +120,8 @@ class _Nested(Progress):
         pass
 
     def warn(self, message: str) -> None:
-        self.outer.warn(message)
+        if self.forward_warnings:
+            self.outer.warn(message)
 
     def check_cancel(self) -> None:
         self.outer.check_cancel()
@@ -126,5 +129,5 @@ class _Nested(Progress):
     def stop_workers(self) -> None:
         self.outer.stop_workers()
 
-    def nested(self) -> Progress:
-        return self
+    def nested(self, warnings: bool = True) -> Progress:
+        return self if warnings or not self.forward_warnings else _Nested(self.outer, False)

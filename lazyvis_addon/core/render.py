@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import resource
 import time
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from typing import Callable
 
 import numpy as np
 
-from .antialias import (PILOT_SAMPLES, Coverage, allocate_samples, centre_suffices, covers_one_surface, cull_to_samples,
+from .antialias import (PILOT_SAMPLES, Coverage, FrameScale, allocate_samples, centre_suffices, neyman_share,
+                        patch_scale, probe_centres, probe_pixels, samples_for, covers_one_surface, cull_to_samples,
                         foreign_samples, inherit_blockers, landing_pixels, lattice_pixels, pixel_coverage,
                         pool_samples, refine_pixels, sample_rgba, settled_pixels, stratum_of, subpixel_samples,
                         surface_strata)
@@ -84,6 +85,12 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
     started = time.perf_counter()
     progress.begin_stage("Validating scene")
     scene = scene.validated(progress)
+    # A window (a border render, a farm's tile) is rendered with a margin that anti-aliasing's decisions
+    # for its pixels read (``aa_margin``), then cropped: its pixels are the full frame's.
+    wanted_window = scene.camera.window
+    margin = aa_margin(settings)
+    if margin and wanted_window != (0, 0, scene.camera.width, scene.camera.height):
+        scene = replace(scene, camera=replace(scene.camera, window=_grown_window(scene.camera, margin)))
     camera = scene.camera
     height, width = camera.window_shape
     n_pixels = height * width
@@ -116,12 +123,18 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
 
         resolved = None
         if settings.aa_samples > 1 and (frame.grid.index_triangle >= 0).any():
-            resolved = _antialias(scene, tracer, extent, frames, settings, progress, stats, pixel_global, frame)
+            resolved = _antialias(scene, tracer, extent, frames, settings, progress, stats, pixel_global, frame,
+                                  wanted_window)
         output = frame.output
         if resolved is not None:
             pixels, pooled, counts = resolved
             output.combined.reshape(-1, 4)[pixels] = pooled
             output.sample_count.reshape(-1)[pixels] = counts
+        if camera.window != wanted_window:
+            output = _cropped(output, _inner_indices(wanted_window, camera.window), wanted_window)
+            scene = replace(scene, camera=replace(camera, window=wanted_window))
+            camera, pixel_global = scene.camera, _global_pixels(scene.camera)
+            stats["pixels"] = len(pixel_global)
         if len(scene.seen):
             # Lights the camera sees add their radiance over whatever lies behind them (Cycles: a light is no
             # occluder for camera rays and adds no alpha).
@@ -242,23 +255,25 @@ def band_rows_for(memory_budget_mb: float, width: int) -> int:
 
 
 def _silhouette_frame(scene: Scene, tracer, extent: float, frames, settings: Settings, progress: Progress,
-                      stats: dict, pixel_global: np.ndarray) -> ShadedFrame:
+                      stats: dict, pixel_global: np.ndarray, edges: MeshEdges | None = None) -> ShadedFrame:
     """Camera rays, pass 2 by silhouettes and the composed passes, band after band of rows: a band's
     centres live only while it is shaded, so memory follows the band (``band_rows_for``), not the frame.
-    Every pixel's value depends on its own centre alone, so bands do not change the image."""
+    Every pixel's value depends on its own centre alone, so bands do not change the image. ``edges``: the
+    edge tree, built here (and the kernels compiled) when None."""
     camera = scene.camera
     height, width = camera.window_shape
     n_pixels = height * width
     x0, y0, x1, _ = camera.window
-    progress.begin_stage("Building edge tree")
-    edges = MeshEdges.from_triangles(scene.triangles, frames, progress.check_cancel)
-    progress.end_stage()
-    stats["edge_records"] = len(edges)
-    # Numba compiles pass 2's kernels on a machine's first render (about 10 s), then its cache serves
-    # them in milliseconds: a stage of its own, so the wait is named and timed.
-    progress.begin_stage("Compiling kernels")
-    stats["kernels_compiled"] = compile_kernels()
-    progress.end_stage()
+    if edges is None:
+        progress.begin_stage("Building edge tree")
+        edges = MeshEdges.from_triangles(scene.triangles, frames, progress.check_cancel)
+        progress.end_stage()
+        stats["edge_records"] = len(edges)
+        # Numba compiles pass 2's kernels on a machine's first render (about 10 s), then its cache serves
+        # them in milliseconds: a stage of its own, so the wait is named and timed.
+        progress.begin_stage("Compiling kernels")
+        stats["kernels_compiled"] = compile_kernels()
+        progress.end_stage()
 
     rows_per_band = band_rows_for(settings.memory_budget_mb, width)
     # The frame's own arrays (FRAME_PIXEL_BYTES): what anti-aliasing reads of the centres (emission only
@@ -410,7 +425,7 @@ def _blocker_map_frame(scene: Scene, tracer, extent: float, frames, settings: Se
 
 
 def _antialias(scene: Scene, tracer, extent: float, frames, settings: Settings, progress: Progress, stats: dict,
-               pixel_global: np.ndarray, frame: ShadedFrame):
+               pixel_global: np.ndarray, frame: ShadedFrame, wanted_window=None):
     """Supersample the edge pixels of ``frame``: (pixels (P,) int64, filtered RGBA (P, 4), samples (P,)), or
     None where no pixel needs it.
 
@@ -422,11 +437,24 @@ def _antialias(scene: Scene, tracer, extent: float, frames, settings: Settings, 
     camera = scene.camera
     height, width = camera.window_shape
     progress.begin_stage("Anti-aliasing")
-    pixels, contrast = _marked_pixels(scene, tracer, settings, frame)
+    # The frame's scale (radiance floor, samples per unit contrast) where pass 2 shades each centre alone:
+    # then a window allocates as the whole frame does. The blocker map's passes keep the window's own.
+    scale = _frame_scale(scene, tracer, extent, frames, settings, progress, stats, frame) \
+        if frame.edges is not None else None
+    pixels, contrast = _marked_pixels(scene, tracer, settings, frame, None if scale is None else scale.radiance_floor)
+    if wanted_window is not None and wanted_window != camera.window:
+        # Only pixels whose samples reach the wanted window's filters: the rest of the margin was rendered
+        # for their marks and contrasts.
+        reach = int(np.ceil(2.0 * settings.filter_reach))
+        xs, ys = pixel_coordinates(camera, pixels)
+        x0, y0, x1, y1 = wanted_window
+        near = (xs >= x0 - reach) & (xs < x1 + reach) & (ys >= y0 - reach) & (ys < y1 + reach)
+        pixels, contrast = pixels[near], contrast[near]
     # Samples are allocated over every marked pixel (a pixel's share does not depend on which others
     # need none). Under a filter far narrower than a pixel, an edge between centres rarely passes
     # under it: camera rays tell which pixels see one triangle there, and those keep their centre.
-    counts = allocate_samples(contrast, settings.aa_samples)
+    counts = allocate_samples(contrast, settings.aa_samples) if scale is None else \
+        samples_for(contrast, scale.share, settings.aa_samples)
     alone = centre_suffices(scene, tracer, pixels, frame.grid.index_triangle[pixels], settings, pixel_global)
     pixels, contrast, counts = pixels[~alone], contrast[~alone], counts[~alone]
     stats["aa_centre_pixels"] = int(alone.sum())
@@ -512,19 +540,16 @@ def _side_by_side_rows(band_rows: int, height: int, threads: int, work: int, lea
 MARK_RING = 2
 
 
-def _marked_pixels(scene: Scene, tracer, settings: Settings, frame: ShadedFrame) -> tuple[np.ndarray, np.ndarray]:
+def _marked_pixels(scene: Scene, tracer, settings: Settings, frame: ShadedFrame, floor: float | None = None
+                   ) -> tuple[np.ndarray, np.ndarray]:
     """``antialias.refine_pixels`` over the window in bands of rows on the threads (each with MARK_RING rows
-    of its neighbours, and the whole window's radiance floor): the marked pixels (P,) int64, ascending, and
-    their contrast (P,), the same as the whole window's at once."""
+    of its neighbours, and one radiance floor: ``floor``, by default 1e-4 of the window's brightest centre):
+    the marked pixels (P,) int64, ascending, and their contrast (P,), the same as the whole window's at once."""
     height, width = scene.camera.window_shape
     x0, y0, x1, _ = scene.camera.window
     grid, radiance = frame.grid, frame.radiance
-    brightest = 0.0
-    for first_row in range(0, height, frame.band_rows):  # bands of rows
-        rows = slice(first_row * width, min(first_row + frame.band_rows, height) * width)
-        seen = radiance[rows] if grid.emission is None else radiance[rows] + grid.emission[rows]
-        brightest = max(brightest, float(seen.max(initial=0.0)))
-    floor = 1e-4 * max(brightest, 1e-30)
+    if floor is None:
+        floor = 1e-4 * max(_brightest(frame), 1e-30)
     threads = thread_count(settings.threads)
     rows_per_band = _side_by_side_rows(frame.band_rows, height, threads, height * width, AA_MIN_BAND_PIXELS)
 
@@ -541,6 +566,61 @@ def _marked_pixels(scene: Scene, tracer, settings: Settings, frame: ShadedFrame)
     # Bands of rows side by side on the threads, in order.
     marks = map_batches(mark, range(0, height, rows_per_band), threads)
     return np.concatenate([m[0] for m in marks]), np.concatenate([m[1] for m in marks])
+
+
+def _brightest(frame: ShadedFrame) -> float:
+    """The largest channel of radiance with emission over the frame's centres (a million at a time)."""
+    brightest, step = 0.0, 1 << 20
+    for first in range(0, len(frame.radiance), step):  # chunks of centres: bounded temporaries
+        rows = slice(first, first + step)
+        seen = frame.radiance[rows] if frame.grid.emission is None else frame.radiance[rows] + frame.grid.emission[rows]
+        brightest = max(brightest, float(seen.max(initial=0.0)))
+    return brightest
+
+
+def _frame_scale(scene: Scene, tracer, extent: float, frames, settings: Settings, progress: Progress, stats: dict,
+                 frame: ShadedFrame) -> FrameScale:
+    """``antialias.FrameScale`` of the whole frame (pass 2 by silhouettes: ``frame.edges``), the same whichever
+    window ``frame`` covers: from every centre of a small frame, from ``probe_centres``' patches of a
+    larger one. Centres the window has are read from ``frame``; the others are shaded here as pass 2 shades
+    them (each on its own, stored as float32 like the frame's), so a tile gets the frame's numbers."""
+    camera = scene.camera
+    full = (0, 0, camera.width, camera.height)
+    probe = probe_centres(camera.width, camera.height)
+    progress = progress.nested(warnings=False)  # part of anti-aliasing; the window has warned already
+    if probe is None:
+        if camera.window == full:
+            whole = frame
+        else:  # a window of a small frame: the rest of the frame's centres, once
+            whole_scene = replace(scene, camera=replace(camera, window=full))
+            whole = _silhouette_frame(whole_scene, tracer, extent, frames, settings.replace(aa_samples=1), progress,
+                                      {}, _global_pixels(whole_scene.camera), edges=frame.edges)
+            scene = whole_scene
+        floor = 1e-4 * max(_brightest(whole), 1e-30)
+        pixels, contrast = _marked_pixels(scene, tracer, settings, whole, floor)
+        return FrameScale(floor, neyman_share(contrast, settings.aa_samples))
+    xs, ys = probe_pixels(*probe)
+    x0, y0, x1, y1 = camera.window
+    inside = (xs >= x0) & (xs < x1) & (ys >= y0) & (ys < y1)
+    local = ((ys - y0) * (x1 - x0) + xs - x0)[inside]
+    index_triangle = np.full(len(xs), -1, frame.grid.index_triangle.dtype)
+    normal = np.zeros((len(xs), 3), np.float32)
+    seen = np.zeros((len(xs), 3), np.float32)
+    index_triangle[inside] = frame.grid.index_triangle[local]
+    normal[inside] = frame.grid.shading_normal[local]
+    seen[inside] = frame.radiance[local] if frame.grid.emission is None else \
+        frame.radiance[local] + frame.grid.emission[local]
+    outside = np.flatnonzero(~inside)
+    if len(outside):
+        surface = _surface_points(scene, tracer, extent, settings, xs[outside], ys[outside])
+        radiance, _, _ = _illuminate(surface, frames, None, tracer, None, settings,
+                                     ys[outside] * camera.width + xs[outside], progress, scene.materials, False,
+                                     frame.edges)
+        index_triangle[outside] = surface.index_triangle
+        normal[outside] = surface.shading_normal
+        seen[outside] = radiance.astype(np.float32) + surface.emission.astype(np.float32)
+        stats["aa_probe_pixels"] = len(outside)
+    return patch_scale(scene, index_triangle, normal, seen, (3 * len(probe[1]), 3 * len(probe[0])), settings)
 
 
 def _sample_bands(row: np.ndarray, samples: np.ndarray, height: int, most_rows: int, most_samples: float):
@@ -604,6 +684,32 @@ def _folded_umbra(frames, umbra: np.ndarray, n_lights: int) -> np.ndarray:
 def _global_pixels(camera, window=None) -> np.ndarray:
     xs, ys = window_pixels(camera, window)
     return ys * camera.width + xs
+
+
+def aa_margin(settings: Settings) -> int:
+    """Pixels around a window that its anti-aliased pixels depend on (0: none, each pixel is its centre's).
+
+    A pixel's value pools the samples of every anti-aliased pixel whose filter overlaps its own (up to
+    twice the filter's reach away); how many samples that one draws depends on its marks and contrast,
+    read from the centres MARK_RING pixels around it; and the window's own outermost marks take a guessed
+    ring outside it (``refine_pixels``), so they are not the frame's: one pixel more. Pass 2 by
+    silhouettes shades each centre on its own, so with this margin a window's pixels are the frame's bit
+    for bit; the paper's blocker map floods between pixels, and keeps the wider ``window_margin``."""
+    if settings.aa_samples <= 1 or not settings.uses_silhouettes:
+        return 0
+    return int(np.ceil(2.0 * settings.filter_reach)) + MARK_RING + 1
+
+
+def _cropped(output: RenderOutput, inner: np.ndarray, window) -> RenderOutput:
+    """``output`` of a grown window cut to ``window``'s pixels (``inner`` (N,) their indices in it)."""
+    x0, y0, x1, y1 = window
+    height, width = y1 - y0, x1 - x0
+
+    def cut(array: np.ndarray) -> np.ndarray:
+        flat = array.reshape(array.shape[0] * array.shape[1], *array.shape[2:])  # (H, W, 0): no -1
+        return np.ascontiguousarray(flat[inner].reshape(height, width, *array.shape[2:]))
+    return RenderOutput(cut(output.combined), cut(output.blocker_count), cut(output.umbra), cut(output.depth),
+                        cut(output.normal), cut(output.sample_count), output.warnings, output.stats)
 
 
 def _grown_window(camera, margin: int) -> tuple[int, int, int, int]:

@@ -64,7 +64,10 @@ class Settings:
         Anti-aliasing: samples for pixels at edges (another polygon, material or a radiance step in
         their neighbourhood) on average: each gets from 2 up to 4 times that many, in proportion to its
         radiance step (``antialias.allocate_samples``), placed by the pixel filter and pooled with the
-        neighbouring edge pixels' samples under its footprint; 1 shades pixel centres only.
+        neighbouring edge pixels' samples under its footprint; 1 shades pixel centres only. The samples
+        per unit of radiance step are the whole frame's (from every pixel of a frame of up to 65,536, from
+        1,024 patches of 3 x 3 pixels spread over a larger one, where the mean is then about this), so
+        that a border or a tile allocates as the frame does.
     aa_coverage_rays : int
         Camera rays per anti-aliased pixel that only find which surface they hit (no shading): the pixel
         is the sum over the surfaces under its filter (connected meshes, told apart by material too) of
@@ -109,10 +112,11 @@ class Settings:
     threads : int
         Worker threads for the batched stages; 0 means one per core.
     window_margin : int
-        When rendering a window (border or tile), pass 1 also covers this many pixels of the frame
-        around it, so that blockers found just outside the window flood into it as they would in the
-        full frame. A margin as large as the frame makes a window exactly equal to the full frame's pixels;
-        the integrators without a blocker map are always exact.
+        Blocker Map visibility only: when rendering a window (border or tile), pass 1 also covers this
+        many pixels of the frame around it, so that blockers found just outside the window flood into it
+        as they would in the full frame. A margin as large as the frame makes a window exactly equal to
+        the full frame's pixels. The default visibility (silhouettes) needs none: a window is always the
+        frame's pixels, its anti-aliasing's own margin worked out from the filter (``render.aa_margin``).
     """
 
     integrator: str = "analytic"

@@ -12,6 +12,7 @@ bpy = pytest.importorskip("bpy")
 from blender_helpers import add_area_light, add_camera, add_light, render_to_exr  # noqa: E402
 
 from lazyvis_addon.blender import engine as engine_module  # noqa: E402
+from lazyvis_addon.core import Settings  # noqa: E402
 from lazyvis_addon.core.progress import RenderCancelled  # noqa: E402
 
 
@@ -369,12 +370,12 @@ def test_transparent_film_clears_background_alpha(scene, tmp_path):
 def test_border_render_equals_the_full_frame_region(scene, tmp_path):
     simple_scene(scene)
     bpy.ops.mesh.primitive_cube_add(size=0.6, location=(0.0, 0.0, 0.3))
-    scene.lazyvis.window_margin = 64
-    # Anti-aliasing off: at the default settings a border's anti-aliased pixels are NOT the full frame's (its
-    # radiance floor and sample allocation are taken over the border, not the frame: README Limits, issue 18),
-    # so this checks only the rest of the path (export of the border, the core's window, Blender's result).
-    scene.lazyvis.aa_samples = 1
+    # The default settings, anti-aliasing on: a border's pixels are the full frame's bit for bit (the core
+    # renders the border's margin and allocates samples at the frame's scale), through the export of the
+    # border, the core's window and Blender's result.
+    assert scene.lazyvis.aa_samples > 1 and scene.lazyvis.window_margin == Settings().window_margin
     full = render_to_exr(scene, tmp_path / "full.exr")["RGBA"]
+    assert (full[..., 3] > 0).any() and len(np.unique(full[..., 0])) > 20  # edges to anti-alias
     render = scene.render
     render.use_border, render.use_crop_to_border = True, True
     render.border_min_x, render.border_max_x, render.border_min_y, render.border_max_y = 0.3, 0.7, 0.2, 0.7
