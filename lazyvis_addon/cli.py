@@ -4,6 +4,8 @@
     lazyvis render scene.blend -a -o out/frame_####.exr   # the file's frame range, out/frame_0001.exr, ...
     lazyvis render scene.blend -s 10 -e 20 -o out/f##.exr --png out/f##.png --resolution-percentage 25
     lazyvis compare scene.blend -o compare.png --json compare.json   # against Cycles (``compare``)
+    lazyvis render scene.blend -f 1 --tiles 4x2 --tile 5 -o tiles/t5.exr  # one tile, for a farm
+    lazyvis merge tiles/t*.exr -o frame.exr                          # stitch the tiles (``tiles``)
 
 does what ``blender -b scene.blend -E LAZYVIS -f 1 -o out.exr`` does with a Blender install: the add-on
 is registered, the file opened, its scene's engine set to LAZYVIS, the frame set and rendered (compositor
@@ -46,6 +48,7 @@ import time
 from pathlib import Path
 
 from .core.progress import Progress
+from .tiles import TileError, apply_tile, merge_tiles, parse_tiles
 
 PROG = "lazyvis"
 ENGINE_ID = "LAZYVIS"  # lazyvis_addon.blender.engine.ENGINE_ID, without importing bpy for --help
@@ -336,11 +339,15 @@ def render_command(args: argparse.Namespace) -> int:
         signal.signal(signal.SIGINT, interrupt)
         width = render.resolution_x * render.resolution_percentage // 100
         height = render.resolution_y * render.resolution_percentage // 100
-        for index, frame in enumerate(frames):
-            progress.prefix = f"Frame {frame} ({index + 1}/{len(frames)}) | " if several else f"Frame {frame} | "
-            scene.frame_set(frame)
-            path = substitute_frame(pattern, frame) if pattern else render.frame_path(frame=frame)
-            started = time.perf_counter()
+        columns, rows = parse_tiles(args.tiles) if args.tiles else (1, 1)
+        if args.tile is not None:  # one tile of the frame: a farm's task; 'lazyvis merge' stitches them
+            try:
+                window = apply_tile(render, args.tile, columns, rows)
+            except ValueError as error:
+                raise CliError(f"--tile {args.tile}: {error}") from None
+            width, height = window[2] - window[0], window[3] - window[1]
+
+        def render_to(path: str, frame: int) -> None:
             try:
                 bpy.ops.render.render(scene=scene.name)
             except RuntimeError as error:
@@ -357,6 +364,16 @@ def render_command(args: argparse.Namespace) -> int:
                 result.save_render(filepath=path, scene=scene)
             except RuntimeError as error:
                 raise CliError(f"frame {frame}: cannot write {path}: {_error_text(error)}") from None
+
+        for index, frame in enumerate(frames):
+            progress.prefix = f"Frame {frame} ({index + 1}/{len(frames)}) | " if several else f"Frame {frame} | "
+            scene.frame_set(frame)
+            path = substitute_frame(pattern, frame) if pattern else render.frame_path(frame=frame)
+            started = time.perf_counter()
+            if args.tiles and args.tile is None:  # every tile in turn, then merged: the frame's file
+                render_tiles(render, columns, rows, path, frame, render_to, progress)
+            else:
+                render_to(path, frame)
             seconds = time.perf_counter() - started
             memory = resident_memory_mb()
             print(f"Saved: '{path}' (frame {frame}, {width} x {height}, {seconds:.2f} s"
@@ -371,6 +388,47 @@ def render_command(args: argparse.Namespace) -> int:
         progress.clear()
         engine_module.observers.remove(progress)
         unregister()
+    return 0
+
+
+def render_tiles(render, columns: int, rows: int, path: str, frame: int, render_to, progress) -> None:
+    """Render the frame as ``columns`` x ``rows`` tiles (``tiles.apply_tile``), each to a file beside
+    ``path``, merge them into ``path`` (``tiles.merge_tiles``) and remove the tiles' files. The image is the
+    whole frame's, bit for bit: a tile renders the margin its anti-aliasing reads."""
+    folder = Path(path).parent / f".{Path(path).name}.tiles"
+    folder.mkdir(parents=True, exist_ok=True)
+    prefix = progress.prefix
+    paths = []
+    try:
+        for tile in range(columns * rows):  # tiles: a handful
+            apply_tile(render, tile, columns, rows)
+            progress.prefix = f"{prefix}Tile {tile + 1}/{columns * rows} | "
+            paths.append(str(folder / f"tile_{tile:04d}.exr"))
+            render_to(paths[-1], frame)
+        try:
+            merge_tiles(paths, path)
+        except TileError as error:
+            raise CliError(f"frame {frame}: {error}") from None
+    finally:
+        progress.prefix = prefix
+        render.use_border = False
+        render.use_stamp_note = False
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def merge_command(args: argparse.Namespace) -> int:
+    """``lazyvis merge TILE.exr ... -o FRAME.exr``: stitch tiles (``tiles.merge_tiles``)."""
+    missing = [tile for tile in args.tiles if not Path(tile).is_file()]
+    if missing:
+        raise CliError(f"no such file: {missing[0]}")
+    try:
+        merged = merge_tiles(args.tiles, args.output)
+    except TileError as error:
+        raise CliError(str(error)) from None
+    except OSError as error:
+        raise CliError(f"cannot write {args.output}: {error.strerror or error}") from None
+    print(f"Saved: '{args.output}' ({merged['tiles']} tiles, {merged['width']} x {merged['height']}, "
+          f"{len(merged['channels'])} channels)", flush=True)
     return 0
 
 
@@ -417,7 +475,20 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--resolution-percentage", type=int, metavar="P",
                         help="override the resolution scale, 1-32767 %% (e.g. 10 for a quick look)")
     render.add_argument("-t", "--threads", type=int, metavar="N", help="render threads (0 = one per core)")
+    render.add_argument("--tiles", metavar="CxR", help="render the frame as C x R tiles (render borders) and "
+                                                       "merge them: the same image, less memory per tile")
+    render.add_argument("--tile", type=int, metavar="I",
+                        help="with --tiles: render only tile I (0 = top left, row by row), cropped, its place "
+                             "in the frame in the file's Note; 'lazyvis merge' stitches the tiles")
     render.set_defaults(handler=render_command)
+    merge = commands.add_parser(
+        "merge", help="stitch tile EXRs (lazyvis render --tile, the Flamenco job) into the frame's EXR",
+        description="Stitch tiles rendered as render borders (cropped or not, RGBA or multilayer, every pass) "
+                    "into the full frame's EXR. Each tile's place comes from its Note; the tiles must agree "
+                    "on frame size, channels and frame, and cover the frame exactly once.")
+    merge.add_argument("tiles", nargs="+", metavar="TILE.exr")
+    merge.add_argument("-o", "--output", required=True, metavar="FRAME.exr", help="the merged EXR")
+    merge.set_defaults(handler=merge_command)
     compare = commands.add_parser(
         "compare", help="LazyVis against Cycles on one frame: a side-by-side PNG with error maps, and figures",
         description="Render a .blend with LazyVis, then with Cycles (direct light only) as a reference, at "
@@ -452,6 +523,15 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--threads must be 0 or more")
     if getattr(args, "reference_samples", None) is not None and args.reference_samples < 64:
         parser.error("--reference-samples must be at least 64")
+    if getattr(args, "tiles", None) is not None and args.command == "render":
+        try:
+            columns, rows = parse_tiles(args.tiles)
+        except ValueError as error:
+            parser.error(f"--tiles: {error}")
+        if args.tile is not None and not 0 <= args.tile < columns * rows:
+            parser.error(f"--tile must be 0 to {columns * rows - 1} for {columns} x {rows} tiles")
+    if getattr(args, "tile", None) is not None and args.tiles is None:
+        parser.error("--tile needs --tiles (the grid the tile is one of)")
     try:
         return args.handler(args)
     except CliError as error:

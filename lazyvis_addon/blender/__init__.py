@@ -1,13 +1,13 @@
-"""The Blender layer: export from the depsgraph, the render engine, its settings and panels.
+"""The Blender layer: export from the depsgraph, the render engine, its settings, panels and operators.
 
 Imports bpy; the core (``lazyvis_addon.core``) never imports this package.
 """
 
 from __future__ import annotations
 
-from . import engine, properties, ui
+from . import engine, operators, properties, ui
 
-_modules = (properties, engine, ui)
+_modules = (properties, engine, operators, ui)
 
 
 def register() -> None:

@@ -38,6 +38,7 @@ from ..core.facing import MAX_SUN_HALF_ANGLE
 from ..core.scene import (LOBE_DIFFUSE, LOBE_GLOSSY, LOBES_ALL, Camera, EmitterHulls, FacingLights, Lights,
                           Materials, Scene, SeenLights)
 from ..core.texture import EXTENSIONS, INTERPOLATIONS, LINEAR_SPACES, SRGB_SPACES, ImageTexture
+from ..tiles import border_window
 
 DISK_VERTICES_DEFAULT = 32
 # Cycles shades objects without a material with a grey diffuse surface.
@@ -183,25 +184,6 @@ def screen_window(projection: str, lens: float, sensor_width: float, sensor_heig
     half_x, half_y = 0.5 * width * pixel, 0.5 * y_correction * height * pixel
     dx, dy = shift_x * view_pixels * pixel, shift_y * view_pixels * pixel
     return np.array([-half_x + dx, half_x + dx, -half_y + dy, half_y + dy])
-
-
-def border_window(width: int, height: int, border: tuple[float, float, float, float] | None
-                  ) -> tuple[int, int, int, int]:
-    """Core pixel window (x0, y0, x1, y1), rows counted from the top, of Blender's render border.
-
-    ``border`` = (min_x, max_x, min_y, max_y) as fractions with y up (Blender's), or None. Blender
-    truncates ``fraction * size`` computed in float32 to whole pixels (measured: the render result has
-    exactly this size; in float64, 7/96 * 96 truncates to 6 where Blender's float32 product gives 7).
-    """
-    if border is None:
-        return (0, 0, width, height)
-    min_x, max_x, min_y, max_y = (np.float32(v) for v in border)
-    x0, x1 = int(min_x * np.float32(width)), int(max_x * np.float32(width))
-    bottom, top = int(min_y * np.float32(height)), int(max_y * np.float32(height))
-    if x1 <= x0 or top <= bottom:
-        raise ValueError(f"the render border selects no pixels of the {width} x {height} image; "
-                         "make it larger or turn Render Region off")
-    return (x0, height - top, x1, height - bottom)
 
 
 def ellipse_polygon(size_x: float, size_y: float, count: int) -> np.ndarray:

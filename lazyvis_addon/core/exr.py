@@ -12,7 +12,8 @@ import os
 import numpy as np
 
 
-def write_exr(path, channels: dict[str, np.ndarray], half: bool = False) -> None:
+def write_exr(path, channels: dict[str, np.ndarray], half: bool = False, attributes: dict[str, str] | None = None
+              ) -> None:
     """Write named (H, W) channels to a scanline EXR file with ZIP compression.
 
     Parameters
@@ -24,6 +25,8 @@ def write_exr(path, channels: dict[str, np.ndarray], half: bool = False) -> None
         EXR stores channels sorted by name, so ``read_exr`` returns them in that order.
     half : bool
         Store 16-bit half floats instead of 32-bit floats (values beyond +-65504 become +-inf).
+    attributes : dict[str, str] or None
+        Extra string attributes for the header (metadata such as Blender's "Note" or "Frame").
 
     Raises
     ------
@@ -53,6 +56,10 @@ def write_exr(path, channels: dict[str, np.ndarray], half: bool = False) -> None
             pixels_by_name[name] = np.ascontiguousarray(array, dtype=pixel_dtype)
     # The binding fills in and replaces entries of both dicts it is given: hand it fresh ones every time.
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    for key, value in (attributes or {}).items():
+        if not isinstance(key, str) or not isinstance(value, str) or key in header:
+            raise ValueError(f"EXR attributes must be new string keys with string values, got {key!r}: {value!r}")
+        header[key] = value
     with OpenEXR.File(header, dict(pixels_by_name)) as exr_file:
         exr_file.write(os.fspath(path))
 
@@ -85,3 +92,46 @@ def read_exr(path) -> dict[str, np.ndarray]:
         listed = ", ".join(f"{name}: {array.shape}" for name, array in channels.items())
         raise ValueError(f"{os.fspath(path)}: channels are not all H x W images ({listed})")
     return channels
+
+
+def read_exr_attributes(path) -> dict:
+    """The header attributes of the first part of an EXR file (the binding's values: strings for
+    Blender's metadata such as "Note", "Frame", "Camera"; tuples and arrays for the windows)."""
+    import OpenEXR
+
+    with OpenEXR.File(os.fspath(path)) as exr_file:
+        return dict(exr_file.header())
+
+
+def read_exr_parts(path) -> list[tuple[str, dict[str, str], dict[str, np.ndarray]]]:
+    """Every part of an EXR file (Blender's multilayer EXR puts each pass in a part of its own): a list of
+    (part name, its string attributes, {channel name: (H, W) float32}), in the file's order."""
+    import OpenEXR
+
+    parts = []
+    with OpenEXR.File(os.fspath(path), separate_channels=True) as exr_file:
+        for part in exr_file.parts:  # parts: one per pass, a handful
+            attributes = {key: value for key, value in part.header.items() if isinstance(value, str)}
+            channels = {name: np.array(channel.pixels, dtype=np.float32) for name, channel in part.channels.items()}
+            parts.append((part.name(), attributes, channels))
+    return parts
+
+
+def write_exr_parts(path, parts: list[tuple[str, dict[str, str], dict[str, np.ndarray]]]) -> None:
+    """Write ``read_exr_parts``' list back as 32-bit float scanline parts with ZIP compression: a single-part
+    file for one unnamed part, a multi-part file otherwise (each part keeps its name and string attributes;
+    all channels of one part must share one (H, W) shape)."""
+    import OpenEXR
+
+    if len(parts) == 1 and not parts[0][0]:
+        name, attributes, channels = parts[0]
+        write_exr(path, channels, attributes={k: v for k, v in attributes.items() if k not in ("name", "type")})
+        return
+    built = []
+    for name, attributes, channels in parts:  # parts: a handful
+        header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+        header.update({key: value for key, value in attributes.items() if key not in ("name", "type")})
+        built.append(OpenEXR.Part(header, {channel: np.ascontiguousarray(values, dtype=np.float32)
+                                           for channel, values in channels.items()}, name))
+    with OpenEXR.File(built) as exr_file:
+        exr_file.write(os.fspath(path))

@@ -329,3 +329,68 @@ def test_the_command_is_installed_with_the_package():
     code = "import sys; from lazyvis_addon import cli; assert 'bpy' not in sys.modules; print('ok')"
     result = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert result.stdout.strip() == "ok", result.stderr
+
+
+# -- tiles (issue 18) ----------------------------------------------------------------------------------------
+
+
+def save_tiled_scene(scene, path):
+    """``save_small_scene`` with a box on the plane (outlines and penumbrae to anti-alias) and the Depth pass,
+    at 40 x 30 px."""
+    scene.view_layers[0].use_pass_z = True
+    bpy.ops.mesh.primitive_cube_add(size=0.6, location=(0.2, -0.1, 0.3))
+    scene.render.resolution_x, scene.render.resolution_y = 40, 30
+    return save_small_scene(scene, path)
+
+
+def test_tiles_merge_into_the_frame_bit_for_bit(scene, tmp_path):
+    """At the default settings: the frame rendered whole, as 3 x 2 tiles merged in one run, and as 2 x 2
+    tiles rendered one per command (a farm's tasks) then stitched by 'lazyvis merge' -- every pass of the
+    multilayer EXR the same, bit for bit."""
+    blend = save_tiled_scene(scene, tmp_path / "tiled.blend")
+    whole = lazyvis("render", blend, "-o", tmp_path / "whole.exr", "--multilayer")
+    assert whole.returncode == 0, whole.stdout + whole.stderr
+    tiled = lazyvis("render", blend, "-o", tmp_path / "tiled.exr", "--multilayer", "--tiles", "3x2")
+    assert tiled.returncode == 0, tiled.stdout + tiled.stderr
+    assert "Tile 6/6" in tiled.stderr and not list(tmp_path.glob(".*tiles"))  # progress; tiles' files removed
+    for tile in range(4):
+        one = lazyvis("render", blend, "-o", tmp_path / "parts" / f"t{tile}.exr", "--multilayer", "--tiles", "2x2",
+                      "--tile", tile)
+        assert one.returncode == 0, one.stdout + one.stderr
+        assert read_exr(tmp_path / "parts" / f"t{tile}.exr")["ViewLayer.Combined"].shape == (15, 20, 4)
+    merged = lazyvis("merge", *sorted((tmp_path / "parts").glob("t*.exr")), "-o", tmp_path / "merged.exr")
+    assert merged.returncode == 0 and "4 tiles, 40 x 30" in merged.stdout, merged.stdout + merged.stderr
+    expected = read_exr(tmp_path / "whole.exr")
+    assert {"ViewLayer.Combined", "ViewLayer.Depth.Z"} <= set(expected)
+    assert len(np.unique(expected["ViewLayer.Combined"][..., 0])) > 50  # edges and shadows, not a flat image
+    for name in ("tiled.exr", "merged.exr"):
+        channels = read_exr(tmp_path / name)
+        assert sorted(channels) == sorted(expected)
+        for key, values in expected.items():
+            np.testing.assert_array_equal(channels[key], values, err_msg=f"{key} of {name}")
+
+
+def test_tile_arguments_and_merge_errors(scene, tmp_path):
+    blend = save_small_scene(scene, tmp_path / "small.blend")
+    for args, message in ((("--tile", "1"), "--tile needs --tiles"), (("--tiles", "0x2"), "tiles must be 1 to 64"),
+                          (("--tiles", "2x2", "--tile", "4"), "--tile must be 0 to 3")):
+        result = lazyvis("render", blend, *args)
+        assert result.returncode == 2 and message in result.stderr, result.stderr
+    assert_clean_failure(lazyvis("merge", tmp_path / "none.exr", "-o", tmp_path / "m.exr"), "no such file")
+    plain = lazyvis("render", blend, "-o", tmp_path / "plain.exr")
+    assert plain.returncode == 0, plain.stderr
+    assert_clean_failure(lazyvis("merge", tmp_path / "plain.exr", "-o", tmp_path / "m.exr"),
+                         "does not say where it lies in the frame")
+
+
+def test_set_tile_operator_sets_the_border_and_the_note(scene):
+    """What a farm's --python-expr calls before rendering a tile."""
+    scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 200, 100, 50
+    assert bpy.ops.lazyvis.set_tile(tile=5, columns=3, rows=2) == {'FINISHED'}
+    render = scene.render
+    assert render.use_border and render.use_crop_to_border and render.use_stamp_note
+    assert (render.border_min_x, render.border_max_x) == pytest.approx((2 / 3, 1.0))
+    assert (render.border_min_y, render.border_max_y) == pytest.approx((0.0, 0.5))
+    assert render.stamp_note_text == "LazyVis tile 66 25 100 50 of 100 x 50"
+    with pytest.raises(RuntimeError, match="tile 6 is not one of"):
+        bpy.ops.lazyvis.set_tile(tile=6, columns=3, rows=2)

@@ -1,0 +1,44 @@
+"""Operators: ``bpy.ops.lazyvis.set_tile``, which a render farm's ``--python-expr`` calls to render one tile
+of a frame (``lazyvis_addon.tiles``)."""
+
+from __future__ import annotations
+
+import bpy
+from bpy.props import IntProperty
+
+from ..tiles import apply_tile
+
+
+class LAZYVIS_OT_set_tile(bpy.types.Operator):
+    """Set the render border to one tile of a grid over the frame, cropped, and write the tile's place into
+    the render's stamp note, so that 'lazyvis merge' can stitch the tiles' files"""
+
+    bl_idname = "lazyvis.set_tile"
+    bl_label = "Set Render Tile"
+    bl_options = {'REGISTER', 'UNDO'}
+
+    tile: IntProperty(name="Tile", min=0, default=0, description="Tile number, row by row from the top left")
+    columns: IntProperty(name="Columns", min=1, max=64, default=2)
+    rows: IntProperty(name="Rows", min=1, max=64, default=2)
+
+    def execute(self, context):
+        try:
+            window = apply_tile(context.scene.render, self.tile, self.columns, self.rows)
+        except ValueError as error:
+            self.report({'ERROR'}, str(error))
+            return {'CANCELLED'}
+        self.report({'INFO'}, f"LazyVis: tile {self.tile} of {self.columns} x {self.rows}: pixels {window}")
+        return {'FINISHED'}
+
+
+classes = (LAZYVIS_OT_set_tile,)
+
+
+def register() -> None:
+    for cls in classes:
+        bpy.utils.register_class(cls)
+
+
+def unregister() -> None:
+    for cls in reversed(classes):
+        bpy.utils.unregister_class(cls)
