@@ -6,7 +6,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: render test bench clean
+.PHONY: render test bench clean node
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -18,8 +18,13 @@ $(STAMP): pyproject.toml
 render: $(STAMP)
 	$(VENV)/bin/lazyvis render sample_blends/floating_boxes.blend -f 1 -o out/floating_boxes.exr --png out/floating_boxes.png
 
-test: $(STAMP)
+test: $(STAMP) node
 	$(PY) -m pytest -q
+
+# The Flamenco job type's tests compile it under Node: Debian's nodejs where the machine has none.
+node:
+	@command -v node >/dev/null 2>&1 || command -v nodejs >/dev/null 2>&1 || \
+		(apt-get update -qq && apt-get install -y -qq nodejs >/dev/null)
 
 # LazyVis against Cycles at equal error on every sample (issue 15; about an hour, references cached).
 bench: $(STAMP)
