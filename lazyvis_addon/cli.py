@@ -6,6 +6,7 @@
     lazyvis compare scene.blend -o compare.png --json compare.json   # against Cycles (``compare``)
     lazyvis render scene.blend -f 1 --tiles 4x2 --tile 5 -o tiles/t5.exr  # one tile, for a farm
     lazyvis merge tiles/t*.exr -o frame.exr                          # stitch the tiles (``tiles``)
+    lazyvis render scene.blend -a --tiles 2x2 --scheduler tcp://host:8786 -o out/f_####.exr  # Dask
 
 does what ``blender -b scene.blend -E LAZYVIS -f 1 -o out.exr`` does with a Blender install: the add-on
 is registered, the file opened, its scene's engine set to LAZYVIS, the frame set and rendered (compositor
@@ -283,6 +284,29 @@ def checked_blend(file: str) -> Path:
 
 
 def render_command(args: argparse.Namespace) -> int:
+    client = None
+    if args.scheduler:  # first: a local cluster's workers must not inherit bpy's sys.path
+        client = _cluster_client(args)
+    try:
+        return _render_command(args, client)
+    finally:
+        if client is not None:
+            from . import cluster
+            cluster.close(client)
+
+
+def _cluster_client(args: argparse.Namespace):
+    """The Dask client of --scheduler (a LocalCluster of --workers processes for 'local'), or a CliError."""
+    try:
+        from . import cluster
+        return cluster.connect(args.scheduler, args.workers or 2)
+    except RuntimeError as error:
+        raise CliError(str(error)) from None
+    except (OSError, TimeoutError) as error:
+        raise CliError(f"cannot reach the scheduler {args.scheduler}: {error}") from None
+
+
+def _render_command(args: argparse.Namespace, client) -> int:
     blend = checked_blend(args.file)
     import bpy
     from .blender import engine as engine_module
@@ -292,6 +316,8 @@ def render_command(args: argparse.Namespace) -> int:
     unregister = _register_addon()
     progress = TerminalProgress()
     engine_module.observers.append(progress)
+    local_core = engine_module.core_render
+    queue = None
     previous_handler = signal.getsignal(signal.SIGINT)
 
     def interrupt(signum, frame):  # first Ctrl-C: cancel the render cleanly; second: stop at once
@@ -340,6 +366,11 @@ def render_command(args: argparse.Namespace) -> int:
         width = render.resolution_x * render.resolution_percentage // 100
         height = render.resolution_y * render.resolution_percentage // 100
         columns, rows = parse_tiles(args.tiles) if args.tiles else (1, 1)
+        if client is not None:  # the engine's core render goes to the cluster, tiles and frames ahead
+            from .cluster import FrameQueue
+            queue = FrameQueue(client, columns, rows)
+            engine_module.core_render = queue
+            ahead, sent = queue.frames_ahead(), 0
         if args.tile is not None:  # one tile of the frame: a farm's task; 'lazyvis merge' stitches them
             try:
                 window = apply_tile(render, args.tile, columns, rows)
@@ -367,10 +398,22 @@ def render_command(args: argparse.Namespace) -> int:
 
         for index, frame in enumerate(frames):
             progress.prefix = f"Frame {frame} ({index + 1}/{len(frames)}) | " if several else f"Frame {frame} | "
+            if queue is not None:
+                while sent < len(frames) and sent <= index + ahead:  # frames ahead, exported and sent
+                    scene.frame_set(frames[sent])
+                    queue.begin(frames[sent], submitting=True)
+                    try:
+                        bpy.ops.render.render(scene=scene.name)
+                    except RuntimeError as error:
+                        raise CliError(f"frame {frames[sent]}: {_error_text(error)}") from None
+                    finally:
+                        progress.clear()
+                    sent += 1
+                queue.begin(frame, submitting=False)
             scene.frame_set(frame)
             path = substitute_frame(pattern, frame) if pattern else render.frame_path(frame=frame)
             started = time.perf_counter()
-            if args.tiles and args.tile is None:  # every tile in turn, then merged: the frame's file
+            if args.tiles and args.tile is None and queue is None:  # every tile in turn, merged: the frame
                 render_tiles(render, columns, rows, path, frame, render_to, progress)
             else:
                 render_to(path, frame)
@@ -387,6 +430,9 @@ def render_command(args: argparse.Namespace) -> int:
         signal.signal(signal.SIGINT, previous_handler)
         progress.clear()
         engine_module.observers.remove(progress)
+        engine_module.core_render = local_core
+        if queue is not None:
+            queue.cancel_all()
         unregister()
     return 0
 
@@ -480,6 +526,11 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--tile", type=int, metavar="I",
                         help="with --tiles: render only tile I (0 = top left, row by row), cropped, its place "
                              "in the frame in the file's Note; 'lazyvis merge' stitches the tiles")
+    render.add_argument("--scheduler", metavar="ADDRESS",
+                        help="render on a Dask cluster: tcp://HOST:PORT of its scheduler, or 'local' for worker "
+                             "processes on this machine (needs pip install 'lazyvis[cluster]'); with --tiles each "
+                             "frame's tiles, and frames ahead, spread over the workers")
+    render.add_argument("--workers", type=int, metavar="N", help="with --scheduler local: worker processes (2)")
     render.set_defaults(handler=render_command)
     merge = commands.add_parser(
         "merge", help="stitch tile EXRs (lazyvis render --tile, the Flamenco job) into the frame's EXR",
@@ -532,6 +583,10 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"--tile must be 0 to {columns * rows - 1} for {columns} x {rows} tiles")
     if getattr(args, "tile", None) is not None and args.tiles is None:
         parser.error("--tile needs --tiles (the grid the tile is one of)")
+    if getattr(args, "scheduler", None) and args.tile is not None:
+        parser.error("--tile renders one tile here; --scheduler renders every tile on the cluster")
+    if getattr(args, "workers", None) is not None and (args.workers < 1 or args.scheduler != "local"):
+        parser.error("--workers (1 or more) goes with --scheduler local")
     try:
         return args.handler(args)
     except CliError as error:

@@ -545,6 +545,10 @@ def test_core_imports_and_renders_without_bpy():
         "from lazyvis_addon.core import render\n"
         "from lazyvis_addon.core.demo_scenes import plane_under_light\n"
         "out = render(plane_under_light(resolution=4))\n"
+        "from lazyvis_addon import cluster, tiles\n"  # what a cluster's worker and the merge import
+        "from lazyvis_addon.core import Settings\n"
+        "part = cluster.render_window(plane_under_light(resolution=4), Settings(), (0, 0, 2, 2))\n"
+        "assert part.combined.shape == (2, 2, 4)\n"
         "assert 'bpy' not in sys.modules\n"
         "print(float(out.combined[2, 2, 0]))\n"
     )
