@@ -378,7 +378,8 @@ def _render_command(args: argparse.Namespace, client) -> int:
                 raise CliError(f"--tile {args.tile}: {error}") from None
             width, height = window[2] - window[0], window[3] - window[1]
 
-        def render_to(path: str, frame: int) -> None:
+        def render_now(frame: int) -> None:
+            """Blender's render of the current frame (its report a CliError; Ctrl-C: Interrupted)."""
             try:
                 bpy.ops.render.render(scene=scene.name)
             except RuntimeError as error:
@@ -387,6 +388,9 @@ def _render_command(args: argparse.Namespace, client) -> int:
                 progress.clear()
             if progress.cancelled:
                 raise Interrupted()
+
+        def render_to(path: str, frame: int) -> None:
+            render_now(frame)
             Path(path).parent.mkdir(parents=True, exist_ok=True)
             result = bpy.data.images.get("Render Result")
             if result is None:
@@ -402,12 +406,7 @@ def _render_command(args: argparse.Namespace, client) -> int:
                 while sent < len(frames) and sent <= index + ahead:  # frames ahead, exported and sent
                     scene.frame_set(frames[sent])
                     queue.begin(frames[sent], submitting=True)
-                    try:
-                        bpy.ops.render.render(scene=scene.name)
-                    except RuntimeError as error:
-                        raise CliError(f"frame {frames[sent]}: {_error_text(error)}") from None
-                    finally:
-                        progress.clear()
+                    render_now(frames[sent])  # its placeholder result is not saved
                     sent += 1
                 queue.begin(frame, submitting=False)
             scene.frame_set(frame)

@@ -40,13 +40,4 @@ class LAZYVIS_OT_set_tile(bpy.types.Operator):
 
 
 classes = (LAZYVIS_OT_set_tile,)
-
-
-def register() -> None:
-    for cls in classes:
-        bpy.utils.register_class(cls)
-
-
-def unregister() -> None:
-    for cls in reversed(classes):
-        bpy.utils.unregister_class(cls)
+register, unregister = bpy.utils.register_classes_factory(classes)
