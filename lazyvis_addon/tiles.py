@@ -8,8 +8,9 @@ Cropped, Blender's EXR is the border's size and says nothing of where it lies (i
 is burnt into the image, in single-layer and multilayer files alike. ``merge_tiles`` reads the notes back,
 checks that the tiles agree and cover the frame exactly once, and writes the frame.
 
-No bpy here: the command line (``lazyvis render --tiles``, ``lazyvis merge``), the Blender operator that
-a farm's ``--python-expr`` calls (``blender.operators``) and the Dask backend share it.
+No bpy here: the command line (``lazyvis render --tiles``, ``lazyvis merge``) and the Blender operator that
+a farm's ``--python-expr`` calls (``blender.operators``) share it. (The Dask backend, ``cluster``, tiles
+the core's window in pixels and stitches arrays in memory: no files, no borders.)
 """
 
 from __future__ import annotations

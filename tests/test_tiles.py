@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lazyvis_addon.core.exr import read_exr, read_exr_attributes, write_exr
+from lazyvis_addon.core.exr import read_exr, read_exr_parts, write_exr
 from lazyvis_addon.tiles import (TileError, border_window, merge_tiles, parse_note, parse_tiles, tile_border,
                                  tile_note)
 
@@ -77,7 +77,7 @@ def test_merge_stitches_cropped_and_uncropped_tiles_of_any_channels(tmp_path):
     merged = read_exr(tmp_path / "frame.exr")
     for name, values in frame.items():
         np.testing.assert_array_equal(merged[name], values)
-    attributes = read_exr_attributes(tmp_path / "frame.exr")
+    [(_, attributes, _)] = read_exr_parts(tmp_path / "frame.exr")
     assert attributes["Frame"] == "1" and attributes["Note"] == "LazyVis: 6 tiles merged"
 
 

@@ -94,15 +94,6 @@ def read_exr(path) -> dict[str, np.ndarray]:
     return channels
 
 
-def read_exr_attributes(path) -> dict:
-    """The header attributes of the first part of an EXR file (the binding's values: strings for
-    Blender's metadata such as "Note", "Frame", "Camera"; tuples and arrays for the windows)."""
-    import OpenEXR
-
-    with OpenEXR.File(os.fspath(path)) as exr_file:
-        return dict(exr_file.header())
-
-
 def read_exr_parts(path) -> list[tuple[str, dict[str, str], dict[str, np.ndarray]]]:
     """Every part of an EXR file (Blender's multilayer EXR puts each pass in a part of its own): a list of
     (part name, its string attributes, {channel name: (H, W) float32}), in the file's order."""

@@ -131,7 +131,7 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
             output.combined.reshape(-1, 4)[pixels] = pooled
             output.sample_count.reshape(-1)[pixels] = counts
         if camera.window != wanted_window:
-            output = _cropped(output, _inner_indices(wanted_window, camera.window), wanted_window)
+            output = _cropped(output, camera.window, wanted_window)
             scene = replace(scene, camera=replace(camera, window=wanted_window))
             camera, pixel_global = scene.camera, _global_pixels(scene.camera)
             stats["pixels"] = len(pixel_global)
@@ -593,7 +593,7 @@ def _frame_scale(scene: Scene, tracer, extent: float, frames, settings: Settings
             whole = frame
         else:  # a window of a small frame: the rest of the frame's centres, once
             whole_scene = replace(scene, camera=replace(camera, window=full))
-            whole = _silhouette_frame(whole_scene, tracer, extent, frames, settings.replace(aa_samples=1), progress,
+            whole = _silhouette_frame(whole_scene, tracer, extent, frames, settings, progress,
                                       {}, _global_pixels(whole_scene.camera), edges=frame.edges)
             scene = whole_scene
         floor = 1e-4 * max(_brightest(whole), 1e-30)
@@ -700,14 +700,13 @@ def aa_margin(settings: Settings) -> int:
     return int(np.ceil(2.0 * settings.filter_reach)) + MARK_RING + 1
 
 
-def _cropped(output: RenderOutput, inner: np.ndarray, window) -> RenderOutput:
-    """``output`` of a grown window cut to ``window``'s pixels (``inner`` (N,) their indices in it)."""
+def _cropped(output: RenderOutput, grown, window) -> RenderOutput:
+    """``output`` of the window ``grown`` cut to ``window``'s pixels (both full-frame x0, y0, x1, y1)."""
     x0, y0, x1, y1 = window
-    height, width = y1 - y0, x1 - x0
+    rows, columns = slice(y0 - grown[1], y1 - grown[1]), slice(x0 - grown[0], x1 - grown[0])
 
     def cut(array: np.ndarray) -> np.ndarray:
-        flat = array.reshape(array.shape[0] * array.shape[1], *array.shape[2:])  # (H, W, 0): no -1
-        return np.ascontiguousarray(flat[inner].reshape(height, width, *array.shape[2:]))
+        return np.ascontiguousarray(array[rows, columns])
     return RenderOutput(cut(output.combined), cut(output.blocker_count), cut(output.umbra), cut(output.depth),
                         cut(output.normal), cut(output.sample_count), output.warnings, output.stats)
 
