@@ -303,9 +303,10 @@ def test_glossy_scene_survives_npz_and_the_command_line(tmp_path):
 
 # -- the default glossy integral: LTC with its shape error integrated (issue 16) ----------------------------
 
-def _lobe_integrals(roughness: float, view_angle: float, polygon: np.ndarray):
+def _lobe_integrals(roughness: float, view_angle: float, polygon: np.ndarray, dense: bool = True):
     """(LTC, LTC + correction, dense quadrature) of ∫ f cos θ_i over a polygon (K, 3) (directions from a
-    receiver at the origin, normal +z) for a white Glossy BSDF seen from ``view_angle`` (radians)."""
+    receiver at the origin, normal +z) for a white Glossy BSDF seen from ``view_angle`` (radians); the
+    quadrature None without ``dense``."""
     from lazyvis_addon.core.illumination import CV_MIN_ROUGHNESS, ltc_residual
     from lazyvis_addon.core.ltc import ltc_shape_integral
     from lazyvis_addon.core.facing import _gauss_triangle
@@ -318,6 +319,8 @@ def _lobe_integrals(roughness: float, view_angle: float, polygon: np.ndarray):
     ltc = share[:, None] * magnitude
     corrected = ltc + (ltc_residual(directions, count, pixel, magnitude, bsdf) if roughness >= CV_MIN_ROUGHNESS
                        else 0.0)
+    if not dense:
+        return ltc[0, 0], corrected[0, 0], None
     # Dense reference: each fan triangle split into 4^6 (4,096) triangles, an 8 x 8 Gauss rule on each.
     rule, weights = _gauss_triangle(8)
     reference = 0.0
@@ -339,6 +342,35 @@ def _lobe_integrals(roughness: float, view_angle: float, polygon: np.ndarray):
     return ltc[0, 0], corrected[0, 0], reference
 
 
+def _lobe_monte_carlo(roughness: float, view_angle: float, polygons: list, samples: int = 1 << 21):
+    """∫ f cos θ_i over each convex polygon of ``polygons`` (as ``_lobe_integrals``) by importance sampling
+    Cycles' GGX lobe (``ggx.sample_ggx_reflection``), the same samples for all: independent of LTC and of
+    any Gauss rule, and unbiased however sharp the lobe (a rule in the light's plane misses the peak below
+    roughness 0.2). Returns [(mean, standard error)] in the polygons' order."""
+    from lazyvis_addon.core.ggx import sample_ggx_reflection
+    surface = points(1, np.random.default_rng(0), glossy_only(roughness))
+    surface.view[:] = [np.sin(view_angle), 0.0, np.cos(view_angle)]
+    bsdf = SurfaceBsdf.of(surface, glossy_only(roughness))
+    u = np.random.default_rng(7).uniform(size=(samples, 2))
+    direction, pdf = sample_ggx_reflection(np.repeat(bsdf.view, samples, axis=0),
+                                           np.repeat(bsdf.normal, samples, axis=0), np.full(samples, roughness), u)
+    value = bsdf.glossy_value(np.zeros(samples, np.int64), direction)[:, 0] * np.maximum(direction[:, 2], 0.0)
+    weight = np.where(pdf > 0, value / np.maximum(pdf, 1e-300), 0.0)
+    out = []
+    for polygon in polygons:  # a handful
+        plane = np.cross(polygon[1] - polygon[0], polygon[2] - polygon[0])
+        plane /= np.linalg.norm(plane)
+        along = direction @ plane
+        hit = direction * ((polygon[0] @ plane) / np.where(np.abs(along) > 1e-12, along, 1e-12))[:, None]
+        inside = along * (polygon[0] @ plane) > 0
+        for k in range(len(polygon)):  # the polygon's edges: a handful
+            a, b = polygon[k], polygon[(k + 1) % len(polygon)]
+            inside &= np.cross(b - a, hit - a) @ plane >= 0
+        estimate = np.where(inside, weight, 0.0)
+        out.append((float(estimate.mean()), float(estimate.std() / np.sqrt(samples))))
+    return out
+
+
 def _wall(x):
     """A vertical rectangle at distance x, across the receiver's horizon (its lower part below it)."""
     return np.array([[x, -1.0, -0.5], [x, 1.0, -0.5], [x, 1.0, 1.5], [x, -1.0, 1.5]])
@@ -350,32 +382,32 @@ def _square(centre, half, height=1.0):
                       [x - half, y + half, height]])
 
 
-@pytest.mark.parametrize("roughness", [0.2, 0.3])
+@pytest.mark.parametrize("roughness", [0.05, 0.1, 0.2])
 def test_the_correction_recovers_the_lobe_at_grazing_views(roughness):
-    """Lobes seen at grazing views (a glossy floor's far part): plain LTC loses most of a large light's lobe,
-    40-75 % of it at 85 degrees, and the correction brings it back (measured at 0.2: -0.6 % overhead,
-    +6.3 % for a light ahead, off the mirror direction; at 0.3: -1.4 %, -0.6 %), while near the mirror
-    direction, where LTC is close, the correction stays within 1 % of the quadrature too. (Below roughness
-    0.2 the default is plain LTC: run from 0.1, the same rule gave +0.5 % and +10.6 % where LTC gives -72 %
-    and -40 %, but 1.9 % against Cycles on the glossy floor at 35-60 degrees where plain LTC gives 1.0 %:
-    the rule is too coarse for the peak of so sharp a lobe, issue 16.)"""
-    for view_degrees in (80.0, 85.0):
+    """Sharp lobes and grazing views (a glossy floor's far part), against importance-sampled Monte Carlo of
+    Cycles' lobe (2 million samples, standard error under 0.9 %): plain LTC loses up to three quarters of a
+    large light's lobe at 80-85 degrees (0.05: -15 %, 0.1: -71 %, 0.2: -75 %, 0.3: -65 %); the correction,
+    integrated in LTC's cosine domain, is within 2.5 % of the lobe there and within 1 % at views up to 60
+    degrees (measured 2026-12-06: worst 2.3 / 2.4 / 1.3 / 1.4 % at 0.05 / 0.1 / 0.2 / 0.3, all views; the
+    same rule in the light's plane gave +10.6 % at 0.1 and +6.3 % at 0.2; 0.3 and up: the test below).
+    Issue 16 asks for 1 % at every view to 85 degrees: not yet met beyond 60."""
+    worst_ltc = 0.0
+    for view_degrees in (0.0, 60.0, 80.0, 85.0):
         view_angle = np.radians(view_degrees)
-        for polygon in (_square((0.0, 0.0), 3.0), _square((-4.0, 0.0), 2.0)):  # overhead; ahead, off the mirror
-            ltc, corrected, reference = _lobe_integrals(roughness, view_angle, polygon)
-            ltc_error, error = abs(ltc / reference - 1), abs(corrected / reference - 1)
-            assert error < 0.08, (view_degrees, corrected / reference)
-            # Where LTC is close the rule may cost up to 1.5 % (at 80 degrees ahead, 0.2: -10 % -> +1.5 %); where
-            # LTC has lost a fifth of the lobe or more, the correction is at least 3 times closer.
-            assert error < 0.015 if ltc_error < 0.02 else ltc_error < 0.2 or error < ltc_error / 3, \
-                (view_degrees, ltc / reference, corrected / reference)
-    worst = 0.0
-    for view_angle in np.radians([0.0, 30.0, 60.0]):
-        mirror = -np.tan(view_angle)
-        for polygon in (_square((mirror, 0.0), 0.1), _square((mirror, 0.0), 1.5)):
-            _, corrected, reference = _lobe_integrals(roughness, view_angle, polygon)
-            worst = max(worst, abs(corrected / reference - 1))
-    assert worst < 0.01, worst
+        mirror = -np.tan(view_angle)  # where the mirror direction meets the plane z = 1
+        # Small and large at the mirror direction; ahead; overhead.
+        polygons = (_square((mirror, 0.0), 0.1), _square((mirror, 0.0), 1.5), _square((-4.0, 0.0), 2.0),
+                    _square((0.0, 0.0), 3.0))
+        for polygon, (reference, error) in zip(polygons, _lobe_monte_carlo(roughness, view_angle, polygons)):
+            if reference < 1e-3 * np.pi:  # a negligible share of the lobe
+                continue
+            assert error < 0.01 * reference
+            ltc, corrected, _ = _lobe_integrals(roughness, view_angle, polygon, dense=False)
+            bound = 0.01 if view_degrees <= 60.0 else 0.025
+            assert abs(corrected / reference - 1) < bound, (view_degrees, polygon[0], ltc / reference,
+                                                            corrected / reference)
+            worst_ltc = max(worst_ltc, abs(ltc / reference - 1))
+    assert worst_ltc > 0.1, worst_ltc  # the control: plain LTC fails where the correction holds
 
 
 @pytest.mark.parametrize("roughness", [0.3, 0.5, 0.8, 1.0])

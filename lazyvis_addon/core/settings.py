@@ -30,9 +30,9 @@ class Settings:
         How the analytic and reference integrators integrate GGX lobes (Principled and Glossy BSDFs) over
         the visible pieces: ``"ltc"`` (linearly transformed cosines, Heitz et al. 2016: analytic, a few
         percent off at grazing views), ``"ltc_cv"`` (the default: LTC as a control variate, the shape of
-        Cycles' lobe against the fitted one integrated by a Gauss rule over the pieces, roughness 0.2 and up;
-        deterministic, 0.1-0.3 % from Cycles on the glossy floor where LTC is 5-6 %, about 1.5x LTC's
-        render time), ``"phong"`` (the paper's Phong lobes with a peak-matched exponent:
+        Cycles' lobe against the fitted one integrated by a Gauss rule over the pieces in LTC's cosine
+        domain, roughness 0.05 and up; deterministic, 0.08-0.42 % from Cycles on the glossy floor where LTC
+        is 1-6 %, about 1.5x LTC's render time), ``"phong"`` (the paper's Phong lobes with a peak-matched exponent:
         analytic, a cruder shape) or ``"mc"`` (``mc_samples`` directions over the visible pieces,
         unbiased). Diffuse lobes stay analytic. The two MC integrators sample every lobe.
     visibility : str

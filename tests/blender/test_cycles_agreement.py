@@ -493,10 +493,11 @@ def test_glossy_monte_carlo_matches_cycles_within_the_noise(addon, case, tmp_pat
     assert ratio <= RATIO_LIMIT and abs(stats["bias"]) < BIAS_LIMIT, describe(case.name, stats)
 
 
-# The default glossy integral (LTC and its shape error by a Gauss rule) against Cycles on the glossy floor:
-# (relative RMSE, |bias|) limits, measured 2026-12-03 at 1.03 / 0.097 / 0.11 / 0.095 % RMSE and biases
-# under 0.08 %. At roughness 0.1 the lobe is too sharp for the rule: plain LTC (1 %) is used there.
-CV_LIMITS = {0.1: (0.012, 0.002), 0.3: (0.0015, 0.0005), 0.5: (0.0015, 0.0005), 0.8: (0.0015, 0.0005)}
+# The default glossy integral (LTC and its shape error by a Gauss rule in LTC's cosine domain) against
+# Cycles on the glossy floor: (relative RMSE, |bias|) limits, measured 2026-12-06 at 0.42 / 0.081 / 0.114 /
+# 0.095 % RMSE (roughness 0.1 / 0.3 / 0.5 / 0.8) and biases under 0.03 %; at 0.1 that is 1.42x the
+# references' noise. Plain LTC: 1.03 % at 0.1 (the default there until the rule moved into LTC's domain).
+CV_LIMITS = {0.1: (0.006, 0.001), 0.3: (0.0015, 0.0005), 0.5: (0.0015, 0.0005), 0.8: (0.0015, 0.0005)}
 
 
 @pytest.mark.parametrize("case", GLOSSY_CASES, ids=[case.name for case in GLOSSY_CASES])
