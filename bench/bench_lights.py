@@ -1,6 +1,6 @@
 """Issue 14's and 16's costs: mesh emitters as hulls, lights the camera sees, and the corrected glossy default.
 
-    .venv/bin/python bench/bench_lights.py [--repeats 3]
+    .venv/bin/python bench/bench_lights.py [--repeats 3] [--parts torus seen glossy]
 
 Core renders (no Blender export), default settings unless said, fastest of ``--repeats`` after a warm-up:
 
@@ -80,29 +80,44 @@ def seen_light_scene(resolution: int, drawn: bool) -> Scene:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--parts", nargs="+", choices=("torus", "seen", "glossy"), default=("torus", "seen", "glossy"),
+                        help="which measurements to run (default: all)")
     args = parser.parse_args()
 
+    if "torus" in args.parts:
+        torus(args.repeats)
+    if "seen" in args.parts:
+        seen(args.repeats)
+    if "glossy" in args.parts:
+        glossy(args.repeats)
+    return 0
+
+
+def torus(repeats: int) -> None:
     print("576-face emissive torus over a floor, 64 px:")
     for grouped, label in ((True, "one hull (two lights)"), (False, "one light per triangle")):
-        seconds, output = fastest(torus_scene(grouped), Settings(), args.repeats)
+        seconds, output = fastest(torus_scene(grouped), Settings(), repeats)
         print(f"  {label:24s} {seconds:6.2f} s, {output.stats['peak_memory_mb']:.0f} MB peak")
 
+
+def seen(repeats: int) -> None:
     print("An area light the camera sees, over a floor:")
     for resolution in (256, 512):
-        plain, _ = fastest(seen_light_scene(resolution, False), Settings(), args.repeats)
-        seconds, output = fastest(seen_light_scene(resolution, True), Settings(), args.repeats)
+        plain, _ = fastest(seen_light_scene(resolution, False), Settings(), repeats)
+        seconds, output = fastest(seen_light_scene(resolution, True), Settings(), repeats)
         print(f"  {resolution} px: {plain:.2f} s without, {seconds:.2f} s drawn "
               f"(Drawing lights {output.stats['stage_seconds'].get('Drawing lights', 0.0):.2f} s)")
 
+
+def glossy(repeats: int) -> None:
     from bench_geometry import load_blend
     print("Glossy integrals (core render of the exported sample):")
     for blend, resolution in (("room", 128), ("room", 256), ("glossy", 128)):
         scene, settings = load_blend(ROOT / "sample_blends" / f"{blend}.blend", resolution, None)
-        times = {name: fastest(scene, replace(settings, glossy_integrator=name), args.repeats)[0]
+        times = {name: fastest(scene, replace(settings, glossy_integrator=name), repeats)[0]
                  for name in ("ltc", "ltc_cv")}
         print(f"  {blend}.blend {resolution} px: ltc {times['ltc']:.2f} s, ltc_cv (default) {times['ltc_cv']:.2f} s "
               f"({times['ltc_cv'] / times['ltc']:.1f}x)")
-    return 0
 
 
 if __name__ == "__main__":
