@@ -407,7 +407,8 @@ def test_the_correction_recovers_the_lobe_at_grazing_views(roughness):
             assert error < 0.01 * reference
             ltc, corrected, _ = _lobe_integrals(roughness, view_angle, polygon, dense=False)
             # The bound on the lobe plus three of the reference's standard errors (0.4 % at 85 degrees ahead).
-            bound = (0.01 if roughness >= 0.1 else 0.015 if view_degrees <= 60.0 else 0.04) + 3.0 * error / reference
+            lobe_bound = 0.01 if roughness >= 0.1 else 0.015 if view_degrees <= 60.0 else 0.04
+            bound = lobe_bound + 3.0 * error / reference
             assert abs(corrected / reference - 1) < bound, (view_degrees, polygon[0], ltc / reference,
                                                             corrected / reference, error / reference)
             worst_ltc = max(worst_ltc, abs(ltc / reference - 1))

@@ -599,15 +599,15 @@ def glossy_analytic(pieces: VisiblePieces, frames: LightFrames, bsdf: SurfaceBsd
         share, centroid = ltc_shape_integral(directions, normal, view, roughness, pieces.count[lobed], centroid=True)
         magnitude = bsdf.glossy_magnitude(pixel, centroid)
         per_piece = share[:, None] * magnitude
-        if method == "ltc_cv":  # LTC as a control variate: its shape error integrated by a Gauss rule
-            wide = np.flatnonzero(roughness >= CV_MIN_ROUGHNESS)
-            per_piece[wide] += ltc_residual(directions[wide], pieces.count[lobed][wide], pixel[wide], magnitude[wide],
-                                            bsdf)
         # Lights far narrower than the lobe (a hard point light, a distant small lamp): the true lobe at the
         # piece's direction times its projected solid angle. LTC fits the lobe's integral, not its value at
         # a point: under a hard light on roughness 0.25 it was 17 % below Cycles.
         lobed_couples, inverse = np.unique(couple, return_inverse=True)
         small = _light_radius(pieces.couples, lobed_couples)[inverse] < SMALL_LIGHT * alpha_from_roughness(roughness)
+        if method == "ltc_cv":  # LTC as a control variate: its shape error integrated by a Gauss rule
+            wide = np.flatnonzero((roughness >= CV_MIN_ROUGHNESS) & ~small)  # small lights: replaced below
+            per_piece[wide] += ltc_residual(directions[wide], pieces.count[lobed][wide], pixel[wide], magnitude[wide],
+                                            bsdf)
         if small.any():
             rows = np.flatnonzero(small)
             real = np.arange(directions.shape[1])[None, :] < pieces.count[lobed][rows, None]
