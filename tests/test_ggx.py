@@ -322,3 +322,24 @@ def test_metal_is_the_f82_closure():
         lit = ss[:, 0] > 1e-12
         ratio = ms[lit] / ss[lit]
         assert np.ptp(ratio, axis=0).max() < 1e-9 and low < ratio.min() and ratio.max() < high, (r, ratio[0])
+
+@pytest.mark.parametrize("closure", [
+    ggx.GlossyMaterial(colour=(0.9, 0.5, 0.2)),
+    ggx.PrincipledSpecular(ior=1.5, specular_ior_level=0.5, specular_tint=(1.0, 0.8, 0.6)),
+    ggx.PrincipledSpecular(ior=1.33, specular_ior_level=0.8),   # F0 adjusted: another η
+    ggx.PrincipledSpecular(ior=0.7, specular_ior_level=0.5),    # η < 1: total internal reflection at grazing
+    ggx.PrincipledSpecular(ior=1.0, specular_ior_level=0.5),    # no specular closure
+    ggx.PrincipledMetal(base_colour=(1.0, 0.77, 0.34), specular_tint=(0.9, 0.6, 1.0)),
+], ids=["glossy", "dielectric", "dielectric_level", "dielectric_below_1", "ior_1", "metal"])
+def test_fresnel_terms_reproduce_every_closures_reflectance(closure):
+    """The Fresnel basis the glossy correction integrates point by point (coefficients from ``fresnel_terms``,
+    functions from ``fresnel_basis``) gives each closure's own ``reflectance`` at every c = ω_o·h, and the
+    compiled blend the kernel calls is the numpy one."""
+    cos_hv = np.linspace(0.0, 1.0, 201)
+    terms, eta = closure.fresnel_terms(len(cos_hv))
+    basis = ggx.fresnel_basis(cos_hv, np.full(len(cos_hv), 1.5) if eta is None else eta)
+    np.testing.assert_allclose(np.einsum("nk,nkc->nc", basis, terms), closure.reflectance(cos_hv), atol=1e-12)
+    if eta is not None:
+        compiled = np.array([ggx.dielectric_blend(c, e) for c, e in zip(cos_hv, eta)])
+        np.testing.assert_allclose(compiled, ggx.PrincipledSpecular.blend(cos_hv, eta), atol=1e-12)
+        assert np.ptp(compiled) > 0.5 or eta[0] == 1.0  # the blend runs from 0 (normal) to 1 (grazing)

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .ggx import (GlossyMaterial, PrincipledMetal, PrincipledSpecular, energy_factor, ggx_brdf,
+from .ggx import (FRESNEL_BASIS_SIZE, GlossyMaterial, PrincipledMetal, PrincipledSpecular, energy_factor, ggx_brdf,
                   principled_diffuse_weight)
 from .ltc import lobe_magnitudes, material_magnitude
 from .scene import Materials
@@ -109,6 +109,25 @@ class SurfaceBsdf:
                 fresnel = closure.reflectance(cos_hv[p])
                 value[p] += weight * fresnel * energy_factor(closure, roughness[p], cos_view[p])
         return norm * value
+
+    def fresnel_terms(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Every closure's weight, multiscatter factor and Fresnel as coefficients of ``ggx.fresnel_basis``
+        (S, 4, 3), and the η of its dielectric blend (S,) (1.5 where the row has no dielectric closure, whose
+        coefficient is then 0): Σ_k coefficients_k basis_k(ω_o·h) · norm equals ``glossy_magnitude`` at any
+        ω_i, but for the metal's clamp to [0, 1]. An integral over a piece carries the Fresnel point by point
+        with it (``illumination.ltc_residual``)."""
+        normal, view, roughness = self.normal[rows], self.view[rows], self.roughness[rows]
+        cos_view = np.clip(_dot(normal, view), 0.0, 1.0)
+        terms = np.zeros((len(rows), FRESNEL_BASIS_SIZE, 3))
+        eta = np.full(len(rows), 1.5)
+        for p, closures in _closures(self.materials, self.row[rows], self.base[rows], np.ones(len(rows), bool)):
+            for closure, weight in closures:
+                coefficients, closure_eta = closure.fresnel_terms(len(p))
+                factor = weight * energy_factor(closure, roughness[p], cos_view[p])
+                terms[p] += coefficients * factor[:, None, :]
+                if closure_eta is not None:
+                    eta[p] = closure_eta
+        return terms, eta
 
     def value(self, rows: np.ndarray, wi: np.ndarray) -> np.ndarray:
         """The whole BSDF f(ω_i, ω_o) (S, 3) in 1/sr: diffuse / π above the horizon plus the GGX lobes."""

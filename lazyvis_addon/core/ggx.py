@@ -225,6 +225,41 @@ def fresnel_dielectric(cos_theta, eta) -> np.ndarray:
     return np.where(g2 > 0.0, np.nan_to_num(value, nan=1.0), 1.0)
 
 
+# Every closure's Fresnel as a combination of four functions of c = ω_o·h, so that an integral over a piece
+# can carry the Fresnel point by point in one pass (``illumination.ltc_residual``): F(c) = Σ_k coefficient_k
+# · basis_k(c), basis = (1, s(c, η), (1 - c)^5, c (1 - c)^6) with s the dielectric blend of
+# ``PrincipledSpecular.blend``. Exact for the Glossy BSDF (1), the Principled specular (F0 + (1 - F0) s) and
+# the unclamped F82-tint metal (F0 + (1 - F0)(1 - c)^5 - b c (1 - c)^6; Cycles clamps it to [0, 1], which
+# the basis leaves out: it binds only for an edge tint above 1 / F0's complement, never for F0, tint <= 1).
+FRESNEL_BASIS_SIZE = 4
+
+
+def fresnel_basis(cos_hv, eta) -> np.ndarray:
+    """The four Fresnel basis functions at c = ``cos_hv`` (N,) for relative IORs ``eta`` (N,), (N, 4)."""
+    c = np.clip(np.asarray(cos_hv, dtype=np.float64), 0.0, 1.0)
+    s = 1.0 - c
+    return np.stack([np.ones_like(c), PrincipledSpecular.blend(c, np.asarray(eta, np.float64)), s ** 5,
+                     c * s ** 6], axis=1)
+
+
+@njit(cache=True, nogil=True)
+def dielectric_blend(c, eta):
+    """``PrincipledSpecular.blend`` for one cosine c in [0, 1] and one η (compiled, for the kernels)."""
+    g2 = eta * eta - 1.0 + c * c
+    if g2 <= 0.0:
+        real = 1.0
+    else:
+        g = np.sqrt(g2)
+        a = (g - c) / (g + c)
+        denominator = c * (g - c) + 1.0
+        b = (c * (g + c) - 1.0) / denominator if denominator != 0.0 else 0.0
+        real = 0.5 * a * a * (1.0 + b * b)
+    real_f0 = ((eta - 1.0) / (eta + 1.0)) ** 2
+    if real_f0 >= 1.0:
+        return 0.0
+    return min(max((real - real_f0) / (1.0 - real_f0), 0.0), 1.0)
+
+
 def f0_from_ior(ior) -> np.ndarray:
     """Normal-incidence reflectance ((η - 1) / (η + 1))²."""
     ior = np.asarray(ior, dtype=np.float64)
@@ -389,6 +424,12 @@ class GlossyMaterial:
         """The Fresnel factor at the microfacet, (N, 3): none (1); the tint is the closure weight."""
         return np.ones((len(cos_hv), 3))
 
+    def fresnel_terms(self, count: int) -> tuple[np.ndarray, None]:
+        """``reflectance`` in the Fresnel basis (``fresnel_basis``): coefficients (N, 4, 3), and no η."""
+        terms = np.zeros((count, FRESNEL_BASIS_SIZE, 3))
+        terms[:, 0] = 1.0
+        return terms, None
+
     def average_fresnel(self, count: int) -> np.ndarray:
         """F_ss for the multiscatter colour, (N, 3): the tint itself (``setup_fresnel_constant``)."""
         return _colours(self.colour, count)
@@ -427,7 +468,8 @@ class PrincipledSpecular:
         """(N,) bool: Cycles creates the specular closure only when η != 1."""
         return self.eta_f0(count)[0] != 1.0
 
-    def blend(self, cos_hv: np.ndarray, eta: np.ndarray) -> np.ndarray:
+    @staticmethod
+    def blend(cos_hv: np.ndarray, eta: np.ndarray) -> np.ndarray:
         """s = saturate((F_real - F0_real) / (1 - F0_real)), the real Fresnel curve mapped to [0, 1], (N,)."""
         real_f0 = f0_from_ior(eta)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -438,6 +480,14 @@ class PrincipledSpecular:
         eta, f0 = self.eta_f0(len(cos_hv))
         s = self.blend(cos_hv, eta)[:, None]
         return np.where(self.exists(len(cos_hv))[:, None], f0 + (1.0 - f0) * s, 0.0)
+
+    def fresnel_terms(self, count: int) -> tuple[np.ndarray, np.ndarray]:
+        """``reflectance`` in the Fresnel basis: coefficients (N, 4, 3) and the blend's η (N,)."""
+        eta, f0 = self.eta_f0(count)
+        exists = self.exists(count)[:, None]
+        terms = np.zeros((count, FRESNEL_BASIS_SIZE, 3))
+        terms[:, 0], terms[:, 1] = np.where(exists, f0, 0.0), np.where(exists, 1.0 - f0, 0.0)
+        return terms, eta
 
     def average_fresnel(self, count: int) -> np.ndarray:
         eta, f0 = self.eta_f0(count)
@@ -471,6 +521,13 @@ class PrincipledMetal:
     def reflectance(self, cos_hv: np.ndarray) -> np.ndarray:
         f0, b = self.f0_b(len(cos_hv))
         return fresnel_f82_tint(cos_hv, f0, b)
+
+    def fresnel_terms(self, count: int) -> tuple[np.ndarray, None]:
+        """``reflectance`` unclamped in the Fresnel basis: coefficients (N, 4, 3), and no η."""
+        f0, b = self.f0_b(count)
+        terms = np.zeros((count, FRESNEL_BASIS_SIZE, 3))
+        terms[:, 0], terms[:, 2], terms[:, 3] = f0, 1.0 - f0, -b
+        return terms, None
 
     def average_fresnel(self, count: int) -> np.ndarray:
         return f82_average(*self.f0_b(count))

@@ -362,6 +362,9 @@ CASES = (
     Case("sun_and_fence", (64, 48), build=sun_and_fence),
     Case("hard_lamps", (64, 48), build=hard_lamps),
     Case("room", (96, 72), blend="sample_blends/room.blend"),
+    # Issue 16: the glossy sample (Principled floor and wall, metal, Glossy BSDF and Mix boxes) at the default
+    # glossy integral.
+    Case("glossy", (96, 96), blend="sample_blends/glossy.blend"),
     Case("emitter_added", (64, 48), build=emitter_added),
     Case("spread_lights", (64, 48), build=spread_lights),
     Case("mesh_emitters", (64, 48), build=mesh_emitters),

@@ -243,7 +243,7 @@ def _renders(scene, case, offsets, tmp_path) -> list[np.ndarray]:
 STRAY_POSITIONS = 4  # stray positions averaged per axis (26 change the textured case's ratio by 0.02)
 
 
-def with_stray_samples(case, ours, tmp_path) -> np.ndarray:
+def with_stray_samples(case, ours, tmp_path, always: bool = False) -> np.ndarray:
     """LazyVis' point-sampled image ``ours`` (H, W, 3) as Cycles' filter of width 0.01 sees it, on scenes
     with textures.
 
@@ -257,10 +257,10 @@ def with_stray_samples(case, ours, tmp_path) -> np.ndarray:
     pixel along each axis. LazyVis' own value keeps 99.8% of the weight: no error of its own can hide in
     the correction. Hard lights' shadows (radius or angle 0) are steps of the same contrast beside a box lit
     by them (hard_lamps: 0.4% at pixels next to a lit box top): corrected the same way. Scenes with neither:
-    ``ours`` unchanged.
+    ``ours`` unchanged, unless ``always`` (references so converged that a silhouette's strays show).
     """
     scene = _point_sampled_scene(case)
-    if not _textured(scene) and not _hard_lights(scene):
+    if not always and not _textured(scene) and not _hard_lights(scene):
         return ours
     positions = -0.5 + 0.51 * (np.arange(STRAY_POSITIONS) + 0.5) / STRAY_POSITIONS
     left = np.mean(_renders(scene, case, [(d, 0.0) for d in positions], tmp_path), axis=0)
@@ -493,25 +493,24 @@ def test_glossy_monte_carlo_matches_cycles_within_the_noise(addon, case, tmp_pat
     assert ratio <= RATIO_LIMIT and abs(stats["bias"]) < BIAS_LIMIT, describe(case.name, stats)
 
 
-# The default glossy integral (LTC and its shape error by a Gauss rule in LTC's cosine domain) against
-# Cycles on the glossy floor: (relative RMSE, |bias|) limits, measured 2026-12-06 at 0.36 / 0.081 / 0.114 /
-# 0.095 % RMSE (roughness 0.1 / 0.3 / 0.5 / 0.8) and biases under 0.03 %; at 0.1 that is 1.21x the
-# references' noise. Plain LTC: 1.03 % at 0.1 (the default there until the rule moved into LTC's domain).
-CV_LIMITS = {0.1: (0.006, 0.001), 0.3: (0.0015, 0.0005), 0.5: (0.0015, 0.0005), 0.8: (0.0015, 0.0005)}
-
-
 @pytest.mark.parametrize("case", GLOSSY_CASES, ids=[case.name for case in GLOSSY_CASES])
-def test_glossy_default_integral_is_within_a_fraction_of_a_percent_of_cycles(addon, case, tmp_path):
-    """Issue 16: at LazyVis' defaults, a fraction of a percent from Cycles where plain LTC is 5-6 % off
-    (``test_glossy_ltc_error_against_cycles_is_as_documented``). Its remaining error is above the references'
-    0.01-0.04 % noise, so the limits are the measured error with a margin, not the noise ratio."""
+def test_glossy_default_integral_matches_cycles_within_the_noise(addon, case, tmp_path):
+    """Issue 16: at LazyVis' defaults (LTC, and what it leaves out of the lobe's shape and the Fresnel's change
+    over a piece by a Gauss rule in LTC's cosine domain) the glossy floor is within Cycles' noise, where plain
+    LTC is 1-6 % off (``test_glossy_ltc_error_against_cycles_is_as_documented``). Measured 2026-12-06:
+    ratio 1.04 / 1.05 / 1.01 / 1.03 at roughness 0.1 / 0.3 / 0.5 / 0.8 (with the Fresnel at each piece's
+    centroid, as before: 1.21 / 2.1 / 7.5 / 8.2, 0.1 % off where the noise is 0.01-0.04 %).
+
+    These references are converged to 0.01 % of the mean at roughness 0.5-0.8, so Cycles' stray samples (1 in
+    1023 per axis, anywhere in the pixel's left or lower half: ``with_stray_samples``) are modelled here as
+    for textures: the row just above the floor's far edge (0.12 pixel below its centres) takes 0.063 % of the
+    floor's radiance from them in Cycles and nothing in a point-sampled LazyVis, 3 times the noise there."""
     first, second = references(case)
-    ours = render_lazyvis(case, "analytic", tmp_path)
+    ours = with_stray_samples(case, render_lazyvis(case, "analytic", tmp_path), tmp_path, always=True)
     edges, at_emitters, _ = excluded_pixels(case, tmp_path)
     stats = agreement(ours, first, second, ~(edges | at_emitters))
-    rmse_limit, bias_limit = CV_LIMITS[dict(case.options)["roughness"]]
     print(describe(f"{case.name} (default glossy)", stats))
-    assert stats["relative_rmse"] <= rmse_limit and abs(stats["bias"]) <= bias_limit, describe(case.name, stats)
+    assert stats["ratio"] <= RATIO_LIMIT and abs(stats["bias"]) < BIAS_LIMIT, describe(case.name, stats)
 
 
 @pytest.mark.parametrize("case", GLOSSY_CASES, ids=[case.name for case in GLOSSY_CASES])
