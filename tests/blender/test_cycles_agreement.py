@@ -340,7 +340,8 @@ def excluded_pixels(case, tmp_path, reach: float = SILHOUETTE_REACH):
 
 KNOWN_DIFFERENCES = set()
 GLOSSY_CASES = [case for case in agreement_scenes.CASES if case.name.startswith("glossy_")]
-# Glossy scenes tested with glossy Monte Carlo only (LTC's shape error on their lobes is issue 16's).
+# Glossy scenes tested with glossy Monte Carlo; the glossy floors also at the defaults (below), ray_visibility
+# not yet: at the defaults its highlights are 0.9 % off (ratio 2.16, 2026-12-06; issue 16).
 GLOSSY_MC_CASES = GLOSSY_CASES + [agreement_scenes.CASES_BY_NAME["ray_visibility"]]
 FILTERED_CASES = [case for case in agreement_scenes.CASES if not case.point_sampled]
 # Cases that fail for a reason another issue owns: run, and expected to fail until it is fixed (strict: a
