@@ -168,8 +168,14 @@ def ray_visibility(scene) -> None:
     a diffuse box: a rectangle light whose reflection the camera sees in the floor reaching only glossy
     lobes (Diffuse off), a square light above reaching only the diffuse lobe (Glossy off), a point lamp
     reaching only glossy lobes, and an emissive panel coloured by a Blackbody node at 2200 K reaching only
-    the diffuse lobe. Tested with glossy Monte Carlo, as the glossy_* cases (LTC's shape error is issue 16's;
-    a spot's cone on glossy lobes takes the diffuse lobe's ratio, so there is none here)."""
+    the diffuse lobe (a spot's cone on glossy lobes takes the diffuse lobe's ratio, so there is none here).
+
+    Cycles' light tree is off here: with it, Cycles' render of all four lights differed from the sum of its
+    renders of each light alone by up to 0.3 % in smooth bands on the floor (4096 samples, 2026-12-06),
+    without it by at most 0.05 %, within its noise; LazyVis matches each light alone within 0.06 % and is
+    additive. Light selection by the tree with lights hidden from one lobe is the suspect (the other
+    multi-light scenes, without such lights, agree with the tree on)."""
+    scene.cycles.use_light_tree = False
     add_camera(scene, location=(0.0, -4.2, 2.2), rotation=(math.radians(66.25), 0.0, 0.0), lens=40.0)
     bpy.ops.mesh.primitive_plane_add(size=8.0)
     assign(bpy.context.object, node_material("Floor", "ShaderNodeBsdfPrincipled", Base_Color=(0.5, 0.5, 0.5),
