@@ -229,8 +229,10 @@ def fresnel_dielectric(cos_theta, eta) -> np.ndarray:
 # can carry the Fresnel point by point in one pass (``illumination.ltc_residual``): F(c) = Σ_k coefficient_k
 # · basis_k(c), basis = (1, s(c, η), (1 - c)^5, c (1 - c)^6) with s the dielectric blend of
 # ``PrincipledSpecular.blend``. Exact for the Glossy BSDF (1), the Principled specular (F0 + (1 - F0) s) and
-# the unclamped F82-tint metal (F0 + (1 - F0)(1 - c)^5 - b c (1 - c)^6; Cycles clamps it to [0, 1], which
-# the basis leaves out: it binds only for an edge tint above 1 / F0's complement, never for F0, tint <= 1).
+# the unclamped F82-tint metal (F0 + (1 - F0)(1 - c)^5 - b c (1 - c)^6). Cycles clamps the metal's to [0, 1],
+# which the basis leaves out: it binds where a dark base colour meets a strong edge tint (F0 0 and Specular
+# Tint 0: below 0 for c in 0.15-0.85), never at the default tint of 1 (b = 0); there the correction
+# integrates the unclamped curve.
 FRESNEL_BASIS_SIZE = 4
 
 
