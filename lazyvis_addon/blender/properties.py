@@ -25,7 +25,7 @@ INTEGRATOR_ITEMS = (
 # Explicit numbers: a .blend stores an enum's number, so the items keep theirs as new ones are added.
 GLOSSY_INTEGRATOR_ITEMS = (
     ("ltc_cv", "LTC + Correction", "LTC with its shape error integrated by a Gauss rule over the visible parts "
-     "(roughness 0.05 and up): noise-free, within a fraction of a percent of Cycles, about 1.5x LTC's time", 3),
+     "(roughness 0.05 and up): noise-free, within Cycles' noise in the tests, about 1.5x LTC's time", 3),
     ("ltc", "LTC", "Linearly transformed cosines over the visible parts of each light: noise-free, a few "
      "percent off at grazing views", 0),
     ("phong", "Phong", "Phong lobes matched to the GGX peak, integrated in closed form (the paper's choice): "

@@ -110,6 +110,18 @@ def ltc_density(directions, normal, view, roughness) -> np.ndarray:
     return np.maximum(local[:, 2] / length, 0.0) / np.pi * determinant / length ** 3
 
 
+def ltc_adjugate(inverse: np.ndarray) -> np.ndarray:
+    """adj(M⁻¹) (M, 3, 3) = det(M⁻¹) · M for LTC's M⁻¹ with its fitted zeros (``ltc_inverse_matrix``: [[a, 0, c],
+    [0, 1, 0], [b, 0, d]], whose adjugate is [[d, 0, -c], [0, ad - bc, 0], [-b, 0, a]]; the fit's determinant
+    ad - bc is positive). By components: np.linalg calls OpenBLAS, whose own threads fought the render's pool."""
+    a, c, b, d = inverse[:, 0, 0], inverse[:, 0, 2], inverse[:, 2, 0], inverse[:, 2, 2]
+    adjugate = np.zeros_like(inverse)
+    adjugate[:, 0, 0], adjugate[:, 0, 2] = d, -c
+    adjugate[:, 1, 1] = a * d - b * c
+    adjugate[:, 2, 0], adjugate[:, 2, 2] = -b, a
+    return adjugate
+
+
 def ltc_shape_integral(directions, normal, view, roughness, count=None, centroid: bool = False):
     """∫_P D_ltc dω: the fraction of the fitted lobe that falls in each polygon, (M,) in [0, 1].
 
@@ -135,7 +147,9 @@ def ltc_shape_integral(directions, normal, view, roughness, count=None, centroid
     points, count = clip_to_half_spaces(points, count, normal)
     cos_view = _dot(normal, view)
     # local_from_world is the frame; the transformed vertex is M⁻¹ (frame p).
-    transform = np.einsum("mij,mjk->mik", ltc_inverse_matrix(roughness, cos_view), ltc_frame(normal, view))
+    inverse = ltc_inverse_matrix(roughness, cos_view)
+    frame = ltc_frame(normal, view)
+    transform = np.einsum("mij,mjk->mik", inverse, frame)
     transformed = np.einsum("mij,mkj->mki", transform, points)
     clipped, clipped_count = clip_convex(transformed, count, transformed[..., 2])
     vector = irradiance_vector(clipped)
@@ -146,13 +160,9 @@ def ltc_shape_integral(directions, normal, view, roughness, count=None, centroid
     share = np.where(valid, fraction, 0.0)
     if not centroid:
         return share
-    # M = (M⁻¹)⁻¹ for M⁻¹ = [[a, 0, c], [0, 1, 0], [b, 0, d]] is [[d, 0, -c], [0, ad - bc, 0], [-b, 0, a]] / (ad - bc);
-    # directions only matter, so the determinant is dropped.
-    inverse = np.einsum("mij,mjk->mik", ltc_inverse_matrix(roughness, cos_view), np.eye(3)[None])
-    a, c, b, d = inverse[:, 0, 0], inverse[:, 0, 2], inverse[:, 2, 0], inverse[:, 2, 2]
-    local = np.stack([d * vector[:, 0] - c * vector[:, 2], (a * d - b * c) * vector[:, 1],
-                      -b * vector[:, 0] + a * vector[:, 2]], axis=1)
-    world = np.einsum("mji,mj->mi", ltc_frame(normal, view), local)
+    # Back by M = adj(M⁻¹) / det M⁻¹; directions only matter, so the determinant is dropped.
+    local = np.einsum("mij,mj->mi", ltc_adjugate(inverse), vector)
+    world = np.einsum("mji,mj->mi", frame, local)
     length = np.linalg.norm(world, axis=1, keepdims=True)
     world = np.where(valid[:, None] & (length > 0), world / np.maximum(length, 1e-300), 0.0)
     return share, world

@@ -31,8 +31,8 @@ class Settings:
         the visible pieces: ``"ltc"`` (linearly transformed cosines, Heitz et al. 2016: analytic, a few
         percent off at grazing views), ``"ltc_cv"`` (the default: LTC as a control variate, the shape of
         Cycles' lobe against the fitted one integrated by a Gauss rule over the pieces in LTC's cosine
-        domain, roughness 0.05 and up; deterministic, 0.08-0.36 % from Cycles on the glossy floor where LTC
-        is 1-6 %, about 1.5x LTC's render time), ``"phong"`` (the paper's Phong lobes with a peak-matched exponent:
+        domain with each closure's Fresnel, roughness 0.05 and up; deterministic, within Cycles' noise on the
+        glossy floor where LTC is 1-6 % off, 1.3-1.5x LTC's render time), ``"phong"`` (the paper's Phong lobes with a peak-matched exponent:
         analytic, a cruder shape) or ``"mc"`` (``mc_samples`` directions over the visible pieces,
         unbiased). Diffuse lobes stay analytic. The two MC integrators sample every lobe.
     visibility : str
