@@ -10,8 +10,9 @@ Per .blend and width (the height follows the .blend's aspect), measured:
   panel and Cycles' pixel filter; the sample .blends carry 16 anti-aliasing samples and, since
   2026-12-06, Blender's default filter width 1.5 px (0.01 px before: the README's tables), which
   ``--filter-width`` overrides for both renderers): full-frame wall time (fastest of
-  ``--repeats``), seconds per stage, the stats counters, and the PROCESS peak memory (ru_maxrss: the
-  largest of this render and all before it; every full-frame LazyVis render runs before any other).
+  ``--repeats``), seconds per stage, the stats counters, the render's own peak memory ("render MB": the
+  process's VmHWM, reset before the render, over its resident size then, as bench_memory.py takes it) and
+  the PROCESS peak (ru_maxrss: the largest of this render and all before it).
 - error: relative RMSE of RGB (RMSE / RMS of the reference) against ``integrator="reference"`` (every
   triangle a candidate blocker) with the same settings. Above ``--reference-max-pixels`` (default 64) both
   render a window of at most that many pixels instead, centred or moved along the diagonal until it sees
@@ -23,7 +24,7 @@ Per .blend and width (the height follows the .blend's aspect), measured:
   is fitted on whole-frame renders at the lowest and highest sample count instead (a window of 64 pixels
   costs Cycles its scene setup only: its per-sample cost there was noise, once negative).
 Targets (PASS/FAIL printed; the exit status is 0 regardless): every sample at 512 px within 2x the
-floating boxes' LazyVis time at 512 px; suzanne_dense3 within 1.5x the same file with its Subdivision
+floating boxes' LazyVis time at 512 px, and its render's memory under 1 GB (RENDER_MEMORY_TARGET_MB); suzanne_dense3 within 1.5x the same file with its Subdivision
 Surface at level 1 (row "suzanne_dense3@level1": the same three lights and camera; ``suzanne.blend`` is a
 level-1 Suzanne under two of them, so it is no measure of what subdivision costs) at each width;
 at 128 px LazyVis at least as fast as Cycles to equal error on every sample; LazyVis' error against
@@ -47,6 +48,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "bench"), str(ROOT / "tools")]
 
 from bench_antialias import blend_scene, relative_rmse, timed  # noqa: E402
+from bench_memory import reset_peak, resident_mb  # noqa: E402
 from make_cycles_reference import configure_cycles, configure_output  # noqa: E402
 
 from lazyvis_addon.core import Settings, render  # noqa: E402
@@ -59,6 +61,7 @@ COUNTERS = ("edge_records", "nodes_visited", "edge_tests", "arcs", "pieces", "de
             "pairs_stored", "max_blockers_per_couple")
 CYCLES_ERROR_FLOOR, ERROR_TARGET = 0.01, 1e-4  # Cycles to max(LazyVis error, 1 %); LazyVis vs reference
 BOXES_TIME_FACTOR, DENSE3_TIME_FACTOR = 2.0, 1.5
+RENDER_MEMORY_TARGET_MB = 1024.0  # a 512 px render's own peak (issue 13)
 LEVEL1_ROW = "suzanne_dense3@level1"  # the subdivision target's baseline (LazyVis' time only)
 
 
@@ -120,14 +123,19 @@ def measure_lazyvis(path: Path, width: int, args, subdivision: int | None = None
     """Full-frame LazyVis render at default settings: the row of numbers and the RGB image (``subdivision``:
     as ``load_blend``'s; the row is then named ``STEM@levelN``)."""
     scene, settings = load_blend(path, width, args.filter_width, subdivision)
+    # The render's own peak: the process's high-water mark reset first (bpy, Numba and earlier rows'
+    # references and Cycles renders are resident before), as bench_memory.py measures it.
+    peak_reset = reset_peak()
+    before = resident_mb("VmRSS")
     out, seconds = timed(scene, settings, args.repeats)
+    render_mb = resident_mb("VmHWM") - before
     stats = out.stats
     name = path.stem if subdivision is None else f"{path.stem}@level{subdivision}"
     row = dict(scene=name, width=scene.camera.width, height=scene.camera.height,
                triangles=len(scene.triangles), lazyvis_seconds=seconds,
                stage_seconds={name: float(value) for name, value in stats["stage_seconds"].items()},
                counters={name: int(stats[name]) for name in COUNTERS if name in stats},
-               peak_memory_mb=float(stats["peak_memory_mb"]),
+               peak_memory_mb=float(stats["peak_memory_mb"]), render_memory_mb=render_mb if peak_reset else None,
                settings=dict(aa_samples=settings.aa_samples, filter_width=settings.filter_width,
                              filter_type=settings.filter_type, visibility=settings.visibility))
     return row, out.combined[..., :3]
@@ -213,16 +221,21 @@ def measure_errors(path: Path, row: dict, image, args, scratch: Path) -> None:
     row.update(cycles_points=points, cycles_fit=cycles_fit(points, target, frame_points))
 
 
+def _megabytes(value) -> str:
+    return "n/a" if value is None else f"{value:.0f}"
+
+
 def print_table(rows, width: int) -> None:
     rows = [row for row in rows if row["width"] == width]
     print(f"\n{width} px wide")
-    print(f"{'scene':16s} {'size':>9s} {'triangles':>9s} {'LazyVis s':>9s} {'peak MB':>8s} {'error':>9s} "
+    print(f"{'scene':16s} {'size':>9s} {'triangles':>9s} {'LazyVis s':>9s} {'render MB':>9s} {'peak MB':>8s} {'error':>9s} "
           f"{'ref s':>7s} {'window':>17s} {'Cycles s':>9s} {'Cycles/LV':>9s}")
     for row in rows:
         fit, (x0, y0, x1, y1) = row["cycles_fit"], row["window"]
         cropped = "*" if (x1 - x0, y1 - y0) != (row["width"], row["height"]) else " "
         print(f"{row['scene']:16s} {row['width']:>4d}x{row['height']:<4d} {row['triangles']:9,d} "
-              f"{row['lazyvis_seconds']:9.2f} {row['peak_memory_mb']:8.0f} {row['error']:9.2e} "
+              f"{row['lazyvis_seconds']:9.2f} {_megabytes(row.get('render_memory_mb')):>9s} "
+              f"{row['peak_memory_mb']:8.0f} {row['error']:9.2e} "
               f"{row['reference_seconds']:7.1f} {f'{x0},{y0}-{x1},{y1}':>17s} {fit['seconds']:8.2f}{cropped} "
               f"{fit['seconds'] / row['lazyvis_seconds']:9.2f}")
     for row in rows:
@@ -259,6 +272,11 @@ def target_checks(rows, widths, baseline=()) -> list[dict]:
               f"({'n/a' if limit is None else f'{limit:.2f} s'})", limit and row["lazyvis_seconds"] <= limit)
     if not at_512:
         check(f"512 px within {BOXES_TIME_FACTOR}x floating boxes (512 px not measured)", None)
+    for row in rows:
+        if row["width"] == 512:
+            memory = row.get("render_memory_mb")
+            check(f"512 px {row['scene']} render memory {_megabytes(memory)} MB < {RENDER_MEMORY_TARGET_MB:.0f} MB",
+                  None if memory is None else memory < RENDER_MEMORY_TARGET_MB)
     for width in widths:
         level1, dense3 = by_name.get((LEVEL1_ROW, width)), by_name.get(("suzanne_dense3", width))
         if level1 and dense3:

@@ -282,6 +282,26 @@ def test_thread_count_and_pixel_batch_do_not_change_the_image():
             np.testing.assert_array_equal(getattr(out, name), getattr(reference, name), err_msg=f"{name} {settings}")
 
 
+def test_runs_of_anti_aliasing_samples_and_coverage_rays_do_not_change_the_image(monkeypatch):
+    """Anti-aliasing shades its samples in runs of pixels of about AA_SHADE_BATCH samples and traces
+    coverage rays in batches of COVERAGE_BATCH (which bound its memory): with runs of 97 samples and
+    batches of 61 rays (odd, so runs split pixels' samples and pass 2's groups differently) every pass is
+    the same bit for bit, the samples and rays counted the same."""
+    import importlib
+    render_module = importlib.import_module("lazyvis_addon.core.render")  # the package's name is the function
+    antialias_module = importlib.import_module("lazyvis_addon.core.antialias")
+    scene = demo_scenes.floating_boxes(resolution=48, n_boxes=9)
+    reference = render(scene, Settings(threads=2))
+    assert reference.stats["aa_samples_shaded"] > 10 * 97 and reference.stats["aa_coverage_rays"] > 10 * 61
+    monkeypatch.setattr(render_module, "AA_SHADE_BATCH", 97)
+    monkeypatch.setattr(antialias_module, "COVERAGE_BATCH", 61)
+    out = render(scene, Settings(threads=2))
+    for name in PASSES:
+        np.testing.assert_array_equal(getattr(out, name), getattr(reference, name), err_msg=name)
+    for counter in ("aa_samples_shaded", "aa_coverage_rays", "aa_settled_pixels"):
+        assert out.stats[counter] == reference.stats[counter], counter
+
+
 @pytest.mark.parametrize("working_mb", [8.0, 12.0])
 def test_bands_of_rows_render_the_same_pixels_as_one_band(working_mb):
     """A smaller memory budget shades the frame in more bands of rows: the image and every pass stay the

@@ -401,8 +401,9 @@ class Coverage:
 COVERAGE_RAYS_PER_SAMPLE = 4
 
 
-# Coverage rays traced per batch: bounds the ray arrays (about 150 bytes a ray) at a 1080p frame's edges.
-COVERAGE_BATCH = 1 << 20
+# Coverage rays traced per batch: bounds the ray arrays and the hits (about 300 bytes a ray at their peak:
+# batches of a million took 295 MB on chairs.blend at 512 px, one per band in flight).
+COVERAGE_BATCH = 1 << 18
 
 
 def pixel_coverage(scene: Scene, tracer, pixels: np.ndarray, counts: np.ndarray, sample_stratum: np.ndarray,
