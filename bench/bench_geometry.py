@@ -58,7 +58,7 @@ from lazyvis_addon.core.exr import read_exr  # noqa: E402
 SAMPLES = ("floating_boxes", "suzanne", "suzanne_dense", "suzanne_dense3", "tree", "chairs", "chapel")
 DEFAULT_BLENDS = [ROOT / "sample_blends" / f"{name}.blend" for name in SAMPLES]
 COUNTERS = ("edge_records", "nodes_visited", "edge_tests", "arcs", "pieces", "depth_rays", "inconsistent_couples",
-            "pairs_stored", "max_blockers_per_couple")
+            "pairs_stored", "max_blockers_per_couple", "lights", "pixels", "aa_pixels", "aa_samples_shaded")
 CYCLES_ERROR_FLOOR, ERROR_TARGET = 0.01, 1e-4  # Cycles to max(LazyVis error, 1 %); LazyVis vs reference
 BOXES_TIME_FACTOR, DENSE3_TIME_FACTOR = 2.0, 1.5
 RENDER_MEMORY_TARGET_MB = 1024.0  # a 512 px render's own peak (issue 13)
@@ -221,6 +221,23 @@ def measure_errors(path: Path, row: dict, image, args, scratch: Path) -> None:
     row.update(cycles_points=points, cycles_fit=cycles_fit(points, target, frame_points))
 
 
+def cost_per_point(row: dict) -> str:
+    """Where a row's time goes, per point and light: pass 2 at the pixel centres ("Illumination" over
+    pixels x lights) and at the anti-aliasing samples ("Anti-aliasing" over samples x lights; its coverage
+    rays and pooling included), and the share of the frame's pixels anti-aliased. A render's time is
+    about centres x their cost + samples x theirs, so this tells a scene whose points cost more (more arcs
+    per couple) from one with more edge pixels (under a 1.5 px filter every pixel within its reach of an
+    outline or a sharp shadow)."""
+    counters, stages = row["counters"], row["stage_seconds"]
+    lights, pixels = max(counters.get("lights", 0), 1), max(counters.get("pixels", 0), 1)
+    samples = counters.get("aa_samples_shaded", 0)
+    centre = 1e6 * stages.get("Illumination", 0.0) / (pixels * lights)
+    sample = 1e6 * stages.get("Anti-aliasing", 0.0) / (samples * lights) if samples else float("nan")
+    return (f"cost: {centre:.1f} us per centre and light, {sample:.1f} us per anti-aliasing sample and light; "
+            f"{counters.get('aa_pixels', 0) / pixels:.1%} of the pixels anti-aliased, "
+            f"{samples / max(counters.get('aa_pixels', 0), 1):.1f} samples each")
+
+
 def _megabytes(value) -> str:
     return "n/a" if value is None else f"{value:.0f}"
 
@@ -241,6 +258,7 @@ def print_table(rows, width: int) -> None:
     for row in rows:
         fit = row["cycles_fit"]
         print(f"  {row['scene']}: stages " + ", ".join(f"{name} {s:.2f}" for name, s in row["stage_seconds"].items()))
+        print("    " + cost_per_point(row))
         print("    counters " + (", ".join(f"{name} {n:,}" for name, n in row["counters"].items()) or "none"))
         print("    Cycles " + ", ".join(f"{p['samples']} spp {p['seconds']:.2f} s {p['error']:.3%}"
                                       for p in row["cycles_points"])

@@ -437,10 +437,11 @@ def _antialias(scene: Scene, tracer, extent: float, frames, settings: Settings, 
     camera = scene.camera
     height, width = camera.window_shape
     progress.begin_stage("Anti-aliasing")
-    # The frame's scale (radiance floor, samples per unit contrast) where pass 2 shades each centre alone:
-    # then a window allocates as the whole frame does. The blocker map's passes keep the window's own.
+    # The frame's scale (radiance floor, samples per unit contrast) where pass 2 shades each centre alone
+    # (by silhouettes, or the reference's every-triangle lists): then a window allocates as the whole frame
+    # does, and the reference's window as the default's. The paper's blocker map keeps the window's own.
     scale = _frame_scale(scene, tracer, extent, frames, settings, progress, stats, frame) \
-        if frame.edges is not None else None
+        if frame.edges is not None or settings.integrator == "reference" else None
     pixels, contrast = _marked_pixels(scene, tracer, settings, frame, None if scale is None else scale.radiance_floor)
     if wanted_window is not None and wanted_window != camera.window:
         # Only pixels whose samples reach the wanted window's filters: the rest of the margin was rendered
@@ -580,21 +581,32 @@ def _brightest(frame: ShadedFrame) -> float:
 
 def _frame_scale(scene: Scene, tracer, extent: float, frames, settings: Settings, progress: Progress, stats: dict,
                  frame: ShadedFrame) -> FrameScale:
-    """``antialias.FrameScale`` of the whole frame (pass 2 by silhouettes: ``frame.edges``), the same whichever
-    window ``frame`` covers: from every centre of a small frame, from ``probe_centres``' patches of a
-    larger one. Centres the window has are read from ``frame``; the others are shaded here as pass 2 shades
-    them (each on its own, stored as float32 like the frame's), so a tile gets the frame's numbers."""
+    """``antialias.FrameScale`` of the whole frame, the same whichever window ``frame`` covers: from every
+    centre of a small frame, from ``probe_centres``' patches of a larger one. Centres the window has are
+    read from ``frame``; the others are shaded here by silhouettes (each on its own, stored as float32 like
+    the frame's), so a tile gets the frame's numbers. A frame of the reference integrator (no
+    ``frame.edges``) takes those from silhouettes too (exact as well, and the reference's every-triangle
+    lists would cost minutes a frame): its window then draws the samples the default's window draws."""
     camera = scene.camera
     full = (0, 0, camera.width, camera.height)
     probe = probe_centres(camera.width, camera.height)
     progress = progress.nested(warnings=False)  # part of anti-aliasing; the window has warned already
+    edges = frame.edges
+
+    def silhouette_edges() -> MeshEdges:
+        if edges is not None:
+            return edges
+        built = MeshEdges.from_triangles(scene.triangles, frames, progress.check_cancel)
+        compile_kernels()
+        return built
+
     if probe is None:
         if camera.window == full:
             whole = frame
         else:  # a window of a small frame: the rest of the frame's centres, once
             whole_scene = replace(scene, camera=replace(camera, window=full))
-            whole = _silhouette_frame(whole_scene, tracer, extent, frames, settings, progress,
-                                      {}, _global_pixels(whole_scene.camera), edges=frame.edges)
+            whole = _silhouette_frame(whole_scene, tracer, extent, frames, settings.replace(integrator="analytic"),
+                                      progress, {}, _global_pixels(whole_scene.camera), edges=silhouette_edges())
             scene = whole_scene
         floor = 1e-4 * max(_brightest(whole), 1e-30)
         pixels, contrast = _marked_pixels(scene, tracer, settings, whole, floor)
@@ -613,9 +625,9 @@ def _frame_scale(scene: Scene, tracer, extent: float, frames, settings: Settings
     outside = np.flatnonzero(~inside)
     if len(outside):
         surface = _surface_points(scene, tracer, extent, settings, xs[outside], ys[outside])
-        radiance, _, _ = _illuminate(surface, frames, None, tracer, None, settings,
+        radiance, _, _ = _illuminate(surface, frames, None, tracer, None, settings.replace(integrator="analytic"),
                                      ys[outside] * camera.width + xs[outside], progress, scene.materials, False,
-                                     frame.edges)
+                                     silhouette_edges())
         index_triangle[outside] = surface.index_triangle
         normal[outside] = surface.shading_normal
         seen[outside] = radiance.astype(np.float32) + surface.emission.astype(np.float32)
@@ -693,9 +705,10 @@ def aa_margin(settings: Settings) -> int:
     twice the filter's reach away); how many samples that one draws depends on its marks and contrast,
     read from the centres MARK_RING pixels around it; and the window's own outermost marks take a guessed
     ring outside it (``refine_pixels``), so they are not the frame's: one pixel more. Pass 2 by
-    silhouettes shades each centre on its own, so with this margin a window's pixels are the frame's bit
-    for bit; the paper's blocker map floods between pixels, and keeps the wider ``window_margin``."""
-    if settings.aa_samples <= 1 or not settings.uses_silhouettes:
+    silhouettes (and the reference integrator) shades each centre on its own, so with this margin a window's
+    pixels are the frame's bit for bit; the paper's blocker map floods between pixels, and keeps the wider
+    ``window_margin``."""
+    if settings.aa_samples <= 1 or not (settings.uses_silhouettes or settings.integrator == "reference"):
         return 0
     return int(np.ceil(2.0 * settings.filter_reach)) + MARK_RING + 1
 
