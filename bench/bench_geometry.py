@@ -11,8 +11,9 @@ Per .blend and width (the height follows the .blend's aspect), measured:
   2026-12-06, Blender's default filter width 1.5 px (0.01 px before: the README's tables), which
   ``--filter-width`` overrides for both renderers): full-frame wall time (fastest of
   ``--repeats``), seconds per stage, the stats counters, the render's own peak memory ("render MB": the
-  process's VmHWM, reset before the render, over its resident size then, as bench_memory.py takes it) and
-  the PROCESS peak (ru_maxrss: the largest of this render and all before it).
+  process's VmHWM, reset before the render, over its resident size then, as bench_memory.py takes it; in
+  this process, which has rendered before and whose heap glibc reuses, a lower bound: bench_memory.py
+  renders in a fresh one) and the PROCESS peak (ru_maxrss: the largest of this render and all before it).
 - error: relative RMSE of RGB (RMSE / RMS of the reference) against ``integrator="reference"`` (every
   triangle a candidate blocker) with the same settings. Above ``--reference-max-pixels`` (default 64) both
   render a window of at most that many pixels instead, centred or moved along the diagonal until it sees
