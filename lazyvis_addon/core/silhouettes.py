@@ -463,8 +463,6 @@ def _visible_parts(surface, couple_pixel, couples, frames, edges, tracer, arcs: 
     region_couple, region_uv, region_count, region_arcs, region_ref_uv, cells, carry = couple_regions(
         couples, frames, arcs, arcs_of, reference, reference_uv, members)
     stats["cells"] += cells
-    region_dirs = couples.directions(frames, region_uv, region_couple)
-    region_ref = couples.directions(frames, region_ref_uv[:, None, :], region_couple)[:, 0]
     region_arcs_of = np.bincount(region_arcs.couple, minlength=len(region_couple))
 
     # The reference depth of each couple: counted fully where arcs cross its light, hidden or not elsewhere.
@@ -519,8 +517,12 @@ def _visible_parts(surface, couple_pixel, couples, frames, edges, tracer, arcs: 
     renumber = np.full(len(region_couple), -1, np.int64)
     renumber[busy] = np.arange(len(busy))
     sub = dataclasses.replace(region_arcs, couple=renumber[region_arcs.couple])
+    # Directions only of the regions arcs cross: a disk light is a polygon of 64 vertices, and working
+    # them out for every region took suzanne_dense3 at 512 px 2.8 s of 36 on one thread.
+    busy_dirs = couples.directions(frames, region_uv[busy], region_couple[busy])
+    busy_ref = couples.directions(frames, region_ref_uv[busy][:, None, :], region_couple[busy])[:, 0]
     piece_region, p_start, p_end, sign, whole, inconsistent = visible_fans(
-        sub, region_dirs[busy], region_count[busy], region_ref[busy], depth[busy])
+        sub, busy_dirs, region_count[busy], busy_ref, depth[busy])
     stats["inconsistent_couples"] += inconsistent
     piece_region = busy[piece_region]
     piece_couple = region_couple[piece_region]
