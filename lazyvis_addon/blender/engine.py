@@ -158,8 +158,32 @@ class LazyVisRenderEngine(bpy.types.RenderEngine):
     bl_use_shading_nodes_custom = False
     bl_use_eevee_viewport = True  # Material Preview in the viewport uses EEVEE
 
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)  # Blender makes its engine data there
+        self._viewport = None
+
+    def __del__(self):
+        viewport = getattr(self, "_viewport", None)
+        if viewport is not None:  # its render thread stops at the core's next cancel check
+            viewport.stop()
+
     def render(self, depsgraph):
         render_frame(self, depsgraph)
+
+    def viewport_session(self):
+        """This engine's Rendered viewport (``viewport.ViewportSession``), made on first use."""
+        if self._viewport is None:
+            from .viewport import ViewportSession
+            self._viewport = ViewportSession(on_image=lambda image: None)
+        return self._viewport
+
+    def view_update(self, context, depsgraph):
+        from .viewport import view_update
+        view_update(self, context, depsgraph)
+
+    def view_draw(self, context, depsgraph):
+        from .viewport import view_draw
+        view_draw(self, context, depsgraph)
 
     def update_render_passes(self, scene=None, renderlayer=None):
         for name, channels, chan_id, kind, _data in render_passes(renderlayer):

@@ -220,7 +220,7 @@ def area_light_radiance(color, power: float, exposure: float, normalize: bool, a
 
 def export_depsgraph(depsgraph, progress: Progress | None = None, *, camera_object=None,
                      resolution: tuple[int, int] | None = None,
-                     disk_vertices: int = DISK_VERTICES_DEFAULT) -> Export:
+                     disk_vertices: int = DISK_VERTICES_DEFAULT, camera: Camera | None = None) -> Export:
     """Read an evaluated depsgraph into a core ``Scene``.
 
     Parameters
@@ -231,6 +231,8 @@ def export_depsgraph(depsgraph, progress: Progress | None = None, *, camera_obje
     resolution : (W, H) or None         full-frame pixels; default from the render settings. The render
                                         engine passes its own ``resolution_x/y`` (Blender's rounding).
     disk_vertices : int                 polygon vertices for disk and ellipse area lights
+    camera : Camera or None             the core camera itself (the Rendered viewport's view), instead of
+                                        ``camera_object`` and ``resolution``
 
     Raises
     ------
@@ -246,7 +248,8 @@ def export_depsgraph(depsgraph, progress: Progress | None = None, *, camera_obje
     if disk_vertices < 3:
         raise ValueError(f"disk lights need at least 3 polygon vertices, not {disk_vertices}")
 
-    camera = export_camera(camera_object or scene.camera, render, width, height)
+    if camera is None:
+        camera = export_camera(camera_object or scene.camera, render, width, height)
     reader = _DepsgraphReader(progress, disk_vertices)
     reader.read(depsgraph)
     background = export_world(scene.world, progress)

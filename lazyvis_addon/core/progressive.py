@@ -1,0 +1,207 @@
+"""Progressive rendering for the Rendered viewport: a coarse image at once, then finer ones, then the final.
+
+Blender's viewport asks for an image after every change (a light moved, the view turned). LazyVis renders
+the scene again at 1/8 of the viewport's resolution, then 1/4, 1/2 and full, each without anti-aliasing
+(every pixel its centre sample), then the full resolution at the render's own settings: the last image is
+the F12 render of the same view. Each step is a plain ``render.render`` of the scene with its camera at
+that resolution (``scaled_camera``): a pixel of a coarse image is ``divisor`` x ``divisor`` viewport pixels
+and lies where they do, so the viewport draws it scaled up in place.
+
+The steps run on a worker thread of their own, one after another; ``start`` cancels the work in progress
+(the core's ``Progress.check_cancel`` raises at its next chunk) and begins again from the coarsest step.
+The front end polls ``latest`` (Blender's ``view_draw``) or is told through ``on_image`` (where it asks for
+a redraw). No bpy here: the Blender layer builds the scenes and draws the images.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, replace
+from typing import Callable
+
+import numpy as np
+
+from .progress import Progress, RenderCancelled
+from .render import render
+from .scene import Camera, Scene
+from .settings import Settings
+
+# Divisors of the viewport's resolution, coarsest first; the last full-resolution step adds anti-aliasing.
+DIVISORS = (8, 4, 2, 1)
+
+
+@dataclass(frozen=True)
+class ViewportImage:
+    """One finished step of a progressive render.
+
+    image : (H', W', 4) float32   linear RGBA of the step's window, H' = ceil(H / divisor) rows for a
+                                  viewport of H rows (the last row and column may reach past the viewport).
+    divisor : int                 viewport pixels per image pixel along each axis.
+    window : (x0, y0, x1, y1)     the image's pixels in the step's frame (``scaled_camera``'s window: the
+                                  whole frame, or the coarse pixels over a border); viewport pixels
+                                  ``divisor`` times these.
+    final : bool                  the last step: the render at the given settings (anti-aliased).
+    generation : int              the ``start`` it belongs to (1, 2, ...).
+    seconds : float               from that ``start`` to this image.
+    """
+
+    image: np.ndarray
+    divisor: int
+    window: tuple[int, int, int, int]
+    final: bool
+    generation: int
+    seconds: float
+
+
+def scaled_camera(camera: Camera, divisor: int) -> Camera:
+    """The camera rendering ``camera``'s view with pixels ``divisor`` times larger: ceil(W / divisor) x
+    ceil(H / divisor) pixels whose pixel (x, y) covers the viewport's pixels divisor * x .. divisor * (x + 1)
+    - 1 (and rows alike), so the frame grows past the right and bottom edges where the size does not divide;
+    a border window is grown to whole coarse pixels."""
+    if divisor == 1:
+        return camera
+    width, height = -(-camera.width // divisor), -(-camera.height // divisor)
+    left, right, bottom, top = camera.screen_window
+    # The frame of divisor * width by divisor * height viewport pixels, anchored at the top left.
+    right = left + (right - left) * divisor * width / camera.width
+    bottom = top - (top - bottom) * divisor * height / camera.height
+    window = None
+    if camera.window is not None:
+        x0, y0, x1, y1 = camera.window
+        window = (x0 // divisor, y0 // divisor, -(-x1 // divisor), -(-y1 // divisor))
+    return replace(camera, width=width, height=height, screen_window=np.array([left, right, bottom, top]),
+                   window=window)
+
+
+def refinement_steps(settings: Settings) -> list[tuple[int, Settings, bool]]:
+    """(divisor, settings, final) of each step: DIVISORS without anti-aliasing, then the full resolution
+    at ``settings`` (with their anti-aliasing; a render without it ends at the plain full step)."""
+    plain = settings.replace(aa_samples=1)
+    steps = [(divisor, plain, False) for divisor in DIVISORS]
+    if settings.aa_samples > 1:
+        steps.append((1, settings, True))
+    else:
+        steps[-1] = (1, settings, True)
+    return steps
+
+
+class _Cancellable(Progress):
+    """The core's progress object of one progressive render: it cancels when its event is set."""
+
+    def __init__(self, stop: threading.Event) -> None:
+        super().__init__()
+        self.stop = stop
+
+    def is_cancelled(self) -> bool:
+        return self.stop.is_set()
+
+
+class ProgressiveRenderer:
+    """Renders the steps of ``refinement_steps`` on a worker thread, the newest ``start`` only.
+
+    ``on_image(ViewportImage)`` is called on the worker thread after each step (keep it short: Blender's
+    ``tag_redraw``); ``render_function`` is ``render.render`` (a test may wrap it).
+    """
+
+    def __init__(self, on_image: Callable[[ViewportImage], None] | None = None,
+                 render_function: Callable = render) -> None:
+        self.on_image = on_image
+        self.render_function = render_function
+        self._lock = threading.Lock()
+        self._latest: ViewportImage | None = None
+        self._error: str | None = None
+        self._warnings: list[str] = []
+        self._generation = 0
+        self._worker: threading.Thread | None = None
+        self._stop = threading.Event()
+
+    # -- the front end's side ------------------------------------------------------------------------------
+    def start(self, scene: Scene, settings: Settings) -> int:
+        """Cancel the render in progress and begin this one at its coarsest step; returns its generation.
+        The previous images stay ``latest`` until the first new one replaces them."""
+        self.cancel(wait=False)
+        with self._lock:
+            self._generation += 1
+            generation = self._generation
+            self._error = None
+            self._warnings = []
+            self._stop = threading.Event()
+            stop = self._stop
+        worker = threading.Thread(target=self._run, args=(scene, settings, generation, stop),
+                                  name="lazyvis-viewport", daemon=True)
+        self._worker = worker
+        worker.start()
+        return generation
+
+    def cancel(self, wait: bool = True, timeout: float | None = None) -> bool:
+        """Stop the render in progress (it raises at the core's next cancel check). With ``wait``, return
+        once its thread has ended (or ``timeout`` seconds have passed): True when no worker is left."""
+        self._stop.set()
+        worker = self._worker
+        if wait and worker is not None:
+            worker.join(timeout)
+            return not worker.is_alive()
+        return worker is None or not worker.is_alive()
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Wait for the current render's last step; True if it has ended (finished, failed or cancelled)."""
+        worker = self._worker
+        if worker is not None:
+            worker.join(timeout)
+            return not worker.is_alive()
+        return True
+
+    @property
+    def generation(self) -> int:
+        """The newest ``start``'s generation (0 before the first)."""
+        with self._lock:
+            return self._generation
+
+    @property
+    def latest(self) -> ViewportImage | None:
+        """The newest finished step (of the newest generation that finished one)."""
+        with self._lock:
+            return self._latest
+
+    @property
+    def error(self) -> str | None:
+        """What stopped the current render, for the viewport's header (None: nothing)."""
+        with self._lock:
+            return self._error
+
+    @property
+    def warnings(self) -> list[str]:
+        """The current render's warnings so far."""
+        with self._lock:
+            return list(self._warnings)
+
+    # -- the worker's side ---------------------------------------------------------------------------------
+    def _run(self, scene: Scene, settings: Settings, generation: int, stop: threading.Event) -> None:
+        started = time.perf_counter()
+        progress = _Cancellable(stop)  # made on this thread: the core asks it for cancels here
+        try:
+            for divisor, step_settings, final in refinement_steps(settings):
+                step_scene = replace(scene, camera=scaled_camera(scene.camera, divisor))
+                output = self.render_function(step_scene, step_settings, progress)
+                image = ViewportImage(output.combined, divisor, step_scene.camera.window, final, generation,
+                                      time.perf_counter() - started)
+                with self._lock:
+                    if stop.is_set() or generation != self._generation:
+                        return
+                    self._latest = image
+                    self._warnings = list(output.warnings)
+                if self.on_image is not None:
+                    self.on_image(image)
+        except RenderCancelled:
+            return
+        except (ValueError, MemoryError) as error:  # bad input and budgets: the core's own messages
+            self._fail(generation, str(error))
+        except Exception as error:  # noqa: BLE001 - the viewport shows it in its header, never a traceback
+            self._fail(generation, f"{type(error).__name__}: {error}")
+
+    def _fail(self, generation: int, message: str) -> None:
+        with self._lock:
+            if generation == self._generation:
+                self._error = message
+
