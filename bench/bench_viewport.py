@@ -6,7 +6,7 @@
 Per .blend, exported through bpy at the viewport size with the engine's settings (the defaults), the
 progressive renderer (``core.progressive``, what the Rendered viewport runs) from a start to each step's
 image: 1/8, 1/4, 1/2 and full resolution without anti-aliasing, then the final (the F12 render of the
-view); the median of ``--repeats`` runs after a warm-up. Then, for each of ``--cancel-delays``, a render
+view); the median of ``--repeats`` runs after a small warm-up render (the kernels loaded). Then, for each of ``--cancel-delays``, a render
 started anew that many seconds into the previous one: how long the previous one's thread took to stop
 (the viewport's "any change cancels the work in progress"), the worst of the delays printed.
 Targets (printed): the first coarse image within about 0.2 s of a change.
@@ -18,6 +18,7 @@ import argparse
 import statistics
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -25,7 +26,8 @@ sys.path[:0] = [str(ROOT), str(ROOT / "bench")]
 
 from bench_geometry import load_blend  # noqa: E402
 
-from lazyvis_addon.core.progressive import ProgressiveRenderer  # noqa: E402
+from lazyvis_addon.core.progressive import ProgressiveRenderer, scaled_camera  # noqa: E402
+from lazyvis_addon.core.render import render  # noqa: E402
 
 SAMPLE_BLENDS = sorted((ROOT / "sample_blends").glob("*.blend"))
 FIRST_IMAGE_TARGET = 0.2
@@ -65,7 +67,8 @@ def main() -> int:
     firsts = []
     for blend in args.blends:
         scene, settings = load_blend(blend, width, None, height=height)
-        step_times(scene, settings)  # warm-up: the kernels loaded, the caches warm
+        # Warm-up: a small render loads the compiled kernels (a viewport session has them from the start).
+        render(replace(scene, camera=scaled_camera(scene.camera, 16)), settings)
         runs = [step_times(scene, settings) for _ in range(args.repeats)]
         medians = [statistics.median(run[k] for run in runs) for k in range(min(map(len, runs)))]
         cancels = [cancel_seconds(scene, settings, delay) for delay in args.cancel_delays]
