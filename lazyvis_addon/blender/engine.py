@@ -163,7 +163,10 @@ class LazyVisRenderEngine(bpy.types.RenderEngine):
         self._viewport = None
 
     def __del__(self):
-        viewport = getattr(self, "_viewport", None)
+        try:
+            viewport = self._viewport
+        except (AttributeError, ReferenceError):  # Blender freed the engine's data first (at exit, Ctrl-C)
+            return
         if viewport is not None:  # its render thread stops at the core's next cancel check
             viewport.stop()
 
