@@ -6,9 +6,9 @@
 Per .blend, exported through bpy at the viewport size with the engine's settings (the defaults), the
 progressive renderer (``core.progressive``, what the Rendered viewport runs) from a start to each step's
 image: 1/8, 1/4, 1/2 and full resolution without anti-aliasing, then the final (the F12 render of the
-view); the median of ``--repeats`` runs after a small warm-up render (the kernels loaded). Then, for each of ``--cancel-delays``, a render
-started anew that many seconds into the previous one: how long the previous one's thread took to stop
-(the viewport's "any change cancels the work in progress"), the worst of the delays printed.
+view); the median of ``--repeats`` runs after a small warm-up render (the kernels loaded). Then, for each
+of ``--cancel-delays``, a render cancelled that many seconds into it: how long its thread took to stop (the
+viewport's "any change cancels the work in progress"), the worst of the delays printed.
 Targets (printed): the first coarse image within about 0.2 s of a change.
 """
 

@@ -177,7 +177,7 @@ class LazyVisRenderEngine(bpy.types.RenderEngine):
         """This engine's Rendered viewport (``viewport.ViewportSession``), made on first use."""
         if self._viewport is None:
             from .viewport import ViewportSession
-            self._viewport = ViewportSession(on_image=lambda image: None)
+            self._viewport = ViewportSession()
         return self._viewport
 
     def view_update(self, context, depsgraph):

@@ -28,13 +28,9 @@ EXPORTED_ID_TYPES = frozenset({"OBJECT", "MESH", "CURVE", "CURVES", "SURFACE", "
 
 
 def needs_export(updates) -> bool:
-    """Whether any of the depsgraph's ``updates`` (``DepsgraphUpdate``: ``id`` with ``id_type`` or its
-    ``bl_rna`` name) changes what the scene exports to."""
-    for update in updates:
-        id_type = getattr(update.id, "id_type", None) or type(update.id).__name__.upper()
-        if id_type in EXPORTED_ID_TYPES:
-            return True
-    return False
+    """Whether any of the depsgraph's ``updates`` (``DepsgraphUpdate``, whose ``id.id_type`` names the
+    kind of data-block) changes what the scene exports to."""
+    return any(update.id.id_type in EXPORTED_ID_TYPES for update in updates)
 
 
 def viewport_camera(view_matrix, window_matrix, width: int, height: int) -> Camera:

@@ -66,10 +66,8 @@ def scaled_camera(camera: Camera, divisor: int) -> Camera:
     # The frame of divisor * width by divisor * height viewport pixels, anchored at the top left.
     right = left + (right - left) * divisor * width / camera.width
     bottom = top - (top - bottom) * divisor * height / camera.height
-    window = None
-    if camera.window is not None:
-        x0, y0, x1, y1 = camera.window
-        window = (x0 // divisor, y0 // divisor, -(-x1 // divisor), -(-y1 // divisor))
+    x0, y0, x1, y1 = camera.window
+    window = (x0 // divisor, y0 // divisor, -(-x1 // divisor), -(-y1 // divisor))
     return replace(camera, width=width, height=height, screen_window=np.array([left, right, bottom, top]),
                    window=window)
 
@@ -111,7 +109,6 @@ class ProgressiveRenderer:
         self._lock = threading.Lock()
         self._latest: ViewportImage | None = None
         self._error: str | None = None
-        self._warnings: list[str] = []
         self._generation = 0
         self._worker: threading.Thread | None = None
         self._stop = threading.Event()
@@ -125,7 +122,6 @@ class ProgressiveRenderer:
             self._generation += 1
             generation = self._generation
             self._error = None
-            self._warnings = []
             self._stop = threading.Event()
             stop = self._stop
         worker = threading.Thread(target=self._run, args=(scene, settings, generation, stop),
@@ -170,12 +166,6 @@ class ProgressiveRenderer:
         with self._lock:
             return self._error
 
-    @property
-    def warnings(self) -> list[str]:
-        """The current render's warnings so far."""
-        with self._lock:
-            return list(self._warnings)
-
     # -- the worker's side ---------------------------------------------------------------------------------
     def _run(self, scene: Scene, settings: Settings, generation: int, stop: threading.Event) -> None:
         started = time.perf_counter()
@@ -190,7 +180,6 @@ class ProgressiveRenderer:
                     if stop.is_set() or generation != self._generation:
                         return
                     self._latest = image
-                    self._warnings = list(output.warnings)
                 if self.on_image is not None:
                     self.on_image(image)
         except RenderCancelled:
@@ -204,4 +193,3 @@ class ProgressiveRenderer:
         with self._lock:
             if generation == self._generation:
                 self._error = message
-
