@@ -163,11 +163,17 @@ def test_adaptive_antialiasing_removes_most_edge_error():
             assert errors[samples, coverage_rays] < error_one / 4, (samples, coverage_rays, error_one, errors)
         assert 0 < adaptive.stats["aa_pixels"] < 0.7 * 64 * 64
         # The Sample Count pass says which pixels those are, and how many samples each drew (the centre
-        # counts as one with coverage rays): ``samples`` on average, more where the edge is stronger.
+        # counts as one with coverage rays): ``samples`` on average, more where the edge is stronger;
+        # with coverage rays fewer where the surfaces under a pixel vary less than the step between them
+        # (the rods are lit evenly: the spread allocation draws less than the contrast's there).
         refined = adaptive.sample_count > 1
         assert refined.sum() == adaptive.stats["aa_pixels"]
         counts = adaptive.sample_count[refined]
-        assert abs(counts.mean() - samples) < 0.5 and counts.min() >= 2 and counts.max() <= 4 * samples
+        if coverage_rays:
+            assert counts.mean() < samples - 0.5 or samples <= 3
+        else:
+            assert abs(counts.mean() - samples) < 0.5
+        assert counts.min() >= 2 and counts.max() <= 4 * samples
         centres = refined.sum() if coverage_rays else 0
         assert counts.sum() == adaptive.stats["aa_samples_shaded"] + centres
         if samples == 32:
@@ -442,7 +448,8 @@ def test_a_pilot_coverage_is_reused_only_where_the_pixel_drew_no_more(monkeypatc
     known = pixel_coverage(scene, tracer, pixels, pilot, pilot_stratum, strata, settings, pixel_global)
     stats = {}
     merged = render_module._with_known_coverage(scene, tracer, pixels, drawn, sample_stratum, strata, settings,
-                                                pixel_global, stats, known, drawn == pilot)
+                                                pixel_global, stats, known, drawn == pilot,
+                                                antialias_module.coverage_rays(drawn, settings))
     fresh = pixel_coverage(scene, tracer, pixels, drawn, sample_stratum, strata, settings, pixel_global)
     np.testing.assert_array_equal(merged.key, fresh.key)
     np.testing.assert_array_equal(merged.fraction, fresh.fraction)
@@ -453,8 +460,8 @@ def test_a_pilot_coverage_is_reused_only_where_the_pixel_drew_no_more(monkeypatc
     with_reuse = render(scene, settings)
     monkeypatch.setattr(render_module, "_with_known_coverage",
                         lambda scene, tracer, pixels, drawn, sample_stratum, strata, settings, pixel_global, stats,
-                        known, reuse: pixel_coverage(scene, tracer, pixels, drawn, sample_stratum, strata, settings,
-                                                     pixel_global))
+                        known, reuse, rays: pixel_coverage(scene, tracer, pixels, drawn, sample_stratum, strata, settings,
+                                                     pixel_global, rays))
     without = render(scene, settings)
     np.testing.assert_array_equal(with_reuse.combined, without.combined)
     assert with_reuse.stats["aa_settled_pixels"] > 0
@@ -494,8 +501,11 @@ def test_samples_are_verified_where_their_pixel_list_does_not_hold(monkeypatch):
     truth = exact.combined[..., :3][refined]
 
     def error(output):
-        np.testing.assert_array_equal(output.sample_count, exact.sample_count)  # the same samples
-        return relative_rmse(output.combined[..., :3][refined], truth)
+        # The same samples but where the pilot's values (verified or not) allocate differently
+        # (``antialias.surface_spread``): a pixel or two.
+        same = output.sample_count[refined] == exact.sample_count[refined]
+        assert same.mean() > 0.99
+        return relative_rmse(output.combined[..., :3][refined][same], truth[same])
     foreign = render(scene, settings)
     every = render(scene, settings.replace(verify_rays=1, refine_rounds=0))
     assert 0 < foreign.stats["aa_verified_samples"] < every.stats["aa_verified_samples"]
@@ -632,7 +642,7 @@ def test_narrow_filter_keeps_centres_settles_smooth_pixels_and_keeps_outlines():
     refined = full.sample_count > 1
     pilot_only = np.minimum(full.sample_count, 1 + antialias_module.PILOT_SAMPLES)
     kept = settled.sample_count
-    assert ((kept == full.sample_count) | (kept == pilot_only) | (kept == 1)).all()
+    assert (((kept <= full.sample_count) & (kept >= pilot_only)) | (kept == 1)).all()
     assert (kept[refined] == 1).mean() > 0.7
     error = relative_rmse(settled.combined[..., :3], full.combined[..., :3])
     assert error < 5e-3, error
@@ -648,7 +658,10 @@ def test_narrow_filter_keeps_centres_settles_smooth_pixels_and_keeps_outlines():
     outline[:, 1:] |= material[:, 1:] != material[:, :-1]
     outline[:, :-1] |= material[:, 1:] != material[:, :-1]
     assert outline.sum() > 20
-    np.testing.assert_array_equal(settled.sample_count[outline], full.sample_count[outline])
+    # They are not settled (their pilot's surfaces differ), though fewer samples may do where the rods
+    # and the floor are lit evenly (``surface_spread``): their coverage rays keep the whole allocation's.
+    assert (settled.sample_count[outline] >= 1 + antialias_module.PILOT_SAMPLES).all()
+    assert relative_rmse(settled.combined[..., :3][outline], full.combined[..., :3][outline]) < 0.01
 
 
 def _primary_triangle(scene):

@@ -13,11 +13,11 @@ from typing import Callable
 
 import numpy as np
 
-from .antialias import (PILOT_SAMPLES, Coverage, FrameScale, allocate_samples, centre_suffices, neyman_share,
+from .antialias import (PILOT_SAMPLES, Coverage, FrameScale, centre_suffices, neyman_share,
                         patch_scale, probe_centres, probe_pixels, samples_for, covers_one_surface, cull_to_samples,
                         foreign_samples, inherit_blockers, landing_pixels, lattice_pixels, pixel_coverage,
-                        pool_samples, refine_pixels, sample_rgba, settled_pixels, stratum_of, subpixel_samples,
-                        surface_strata)
+                        pool_samples, refine_pixels, rgba_of, sample_rgba, settled_pixels, stratum_of,
+                        subpixel_samples, surface_spread, surface_strata, coverage_rays)
 from .blockers import BlockerPolygons
 from .blocker_map import BlockerMap, build_blocker_map, flood_fill, reference_blocker_map
 from .camera import camera_rays, clip_distance, pixel_coordinates, planar_depth, window_pixels
@@ -454,8 +454,8 @@ def _antialias(scene: Scene, tracer, extent: float, frames, settings: Settings, 
     # Samples are allocated over every marked pixel (a pixel's share does not depend on which others
     # need none). Under a filter far narrower than a pixel, an edge between centres rarely passes
     # under it: camera rays tell which pixels see one triangle there, and those keep their centre.
-    counts = allocate_samples(contrast, settings.aa_samples) if scale is None else \
-        samples_for(contrast, scale.share, settings.aa_samples)
+    share = neyman_share(contrast, settings.aa_samples) if scale is None else scale.share
+    counts = samples_for(contrast, share, settings.aa_samples)
     alone = centre_suffices(scene, tracer, pixels, frame.grid.index_triangle[pixels], settings, pixel_global)
     pixels, contrast, counts = pixels[~alone], contrast[~alone], counts[~alone]
     stats["aa_centre_pixels"] = int(alone.sum())
@@ -477,6 +477,17 @@ def _antialias(scene: Scene, tracer, extent: float, frames, settings: Settings, 
     bands = _sample_bands(row, wanted, height, most_rows, settings.memory_budget_mb * AA_SAMPLES_PER_MB / threads)
     counters = ("aa_settled_pixels", "aa_coverage_rays", "aa_verified_samples", "verify_rays")
     nested = progress.nested()  # made here: it forwards cancel checks from this thread only
+    grid = frame.grid
+
+    def centre_rgba(lattice: np.ndarray) -> np.ndarray:
+        return rgba_of(frame.radiance[lattice], grid.index_triangle[lattice] >= 0,
+                       None if grid.emission is None else grid.emission[lattice], scene, settings)
+
+    # Once the pilot's coverage tells the surfaces under a pixel apart, its samples are allocated again by
+    # the variation within them (``surface_spread``) at the same samples per unit.
+    spread = _SpreadAllocation((height, width), centre_rgba, lambda lattice: stratum_of(grid.index_triangle[lattice],
+                                                                                       strata),
+                               lambda spread: samples_for(spread, share, settings.aa_samples) - (1 if covered else 0))
     # Each band's pass 2 and camera rays run on the pool too: the bands in flight share the budget.
     band_settings = settings.replace(memory_budget_mb=settings.memory_budget_mb / threads)
 
@@ -494,7 +505,8 @@ def _antialias(scene: Scene, tracer, extent: float, frames, settings: Settings, 
                    frame.lazy_state, frame.verify, frame.edges)
         band = pixels[chosen]
         drawn, rgba, position, triangle, pilot_coverage = _shade_until_settled(
-            band, wanted[chosen], contrast[chosen], frame.centres(band), frame.radiance[band], strata, shading, own)
+            band, wanted[chosen], contrast[chosen], frame.centres(band), frame.radiance[band], strata, shading, own,
+            spread)
         if covered:
             values = _pool_with_coverage(scene, tracer, frame.centres, frame.radiance, band, drawn, rgba, position,
                                          triangle, strata, settings, pixel_global, counted, pilot_coverage)
@@ -1058,11 +1070,29 @@ def _shade_sample_batch(pixels: np.ndarray, counts: np.ndarray, scene: Scene, tr
     return sample_rgba(sub_radiance, sub, scene, settings), position, sub.index_triangle
 
 
+@dataclass(frozen=True)
+class _SpreadAllocation:
+    """What ``_shade_until_settled`` needs to allocate samples by ``antialias.surface_spread``.
+
+    shape : (H, W) the window; centre_rgba, centre_stratum : window-local pixels (M,) -> their centres'
+    RGBA (M, 4) and surfaces (M,); samples : spread (P,) -> samples still to draw (P,) int64 (the contrast
+    allocation's rule, the centre not counted where coverage makes it a sample).
+    """
+
+    shape: tuple[int, int]
+    centre_rgba: Callable[[np.ndarray], np.ndarray]
+    centre_stratum: Callable[[np.ndarray], np.ndarray]
+    samples: Callable[[np.ndarray], np.ndarray]
+
+
 def _shade_until_settled(pixels: np.ndarray, drawn: np.ndarray, contrast: np.ndarray, centre: SurfacePoints,
-                         centre_radiance: np.ndarray, strata: np.ndarray, shading: tuple, counted: np.ndarray | None = None
+                         centre_radiance: np.ndarray, strata: np.ndarray, shading: tuple, counted: np.ndarray | None = None,
+                         spread: _SpreadAllocation | None = None
                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple | None]:
     """Shade the anti-aliasing samples of ``pixels`` (P,): a pilot of ``PILOT_SAMPLES`` each, then the rest
-    of ``drawn`` (P,) only where the pilot has not settled (``antialias.settled_pixels``).
+    of ``drawn`` (P,) only where the pilot has not settled (``antialias.settled_pixels``); with ``spread``
+    and coverage rays, at most as many as the variation within the pixel's surfaces asks for
+    (``antialias.surface_spread``), while its coverage rays stay as many as ``drawn`` asks for.
 
     ``contrast`` (P,) is each pixel's radiance step to its neighbours, ``centre`` and ``centre_radiance``
     (P, 3) pass 1's points and radiance at the pixels' centres, ``strata`` (T,) ``surface_strata``,
@@ -1075,6 +1105,7 @@ def _shade_until_settled(pixels: np.ndarray, drawn: np.ndarray, contrast: np.nda
     """
     scene, tracer, settings, pixel_global, stats = shading[0], shading[1], shading[3], shading[4], shading[8]
     pilot = np.minimum(drawn, PILOT_SAMPLES) if settings.aa_settle_tolerance > 0 else drawn
+    by_contrast = drawn
     rgba, position, triangle = _shade_samples(pixels, pilot, *shading)
     rest = drawn - pilot
     if not rest.any():
@@ -1086,14 +1117,25 @@ def _shade_until_settled(pixels: np.ndarray, drawn: np.ndarray, contrast: np.nda
     if settings.aa_coverage_rays > 0:
         pilot_coverage = pixel_coverage(scene, tracer, pixels, pilot, pilot_stratum, strata, settings, pixel_global)
         one_surface = covers_one_surface(pilot_coverage, centre_stratum)
+        if spread is not None:
+            within = surface_spread(pixels, spread.shape, settings.filter_reach, pilot_coverage, rgba, pilot_stratum,
+                                    pilot, spread.centre_rgba, spread.centre_stratum, contrast)
+            drawn = np.maximum(np.minimum(drawn, spread.samples(within)), pilot)
+            rest = drawn - pilot
     else:
         owner = np.repeat(np.arange(len(pixels)), pilot)
         one_surface = np.bincount(owner, weights=pilot_stratum != centre_stratum[owner], minlength=len(pixels)) == 0
     scale = np.maximum(np.abs(centre_rgba[:, :3]).max(axis=1), contrast)
-    more = ~settled_pixels(rgba, pilot, centre_rgba, one_surface, settings.aa_settle_tolerance * scale) & (rest > 0)
+    calm = settled_pixels(rgba, pilot, centre_rgba, one_surface, settings.aa_settle_tolerance * scale)
+    more = ~calm & (rest > 0)
     settled = ~more if counted is None else ~more & counted
     stats["aa_settled_pixels"] = stats.get("aa_settled_pixels", 0) + int(settled.sum())
-    known = None if pilot_coverage is None else (pilot_coverage, ~more)
+    # Coverage rays as the contrast allocated (but where one surface settled): at an outline between two
+    # smooth surfaces they carry the jump, however few samples the surfaces need (with as few rays as
+    # samples the error there doubled).
+    rays = coverage_rays(np.where(calm, pilot, by_contrast), settings)
+    known = None if pilot_coverage is None else (pilot_coverage, ~more & (rays == coverage_rays(pilot, settings)),
+                                                 rays)
     if not more.any():
         return pilot, rgba, position, triangle, known
     extra = _shade_samples(pixels[more], rest[more], *shading, first=pilot[more])
@@ -1151,14 +1193,15 @@ def _pool_with_coverage(scene: Scene, tracer, centres: Callable, radiance: np.nd
 
 def _with_known_coverage(scene: Scene, tracer, pixels: np.ndarray, drawn: np.ndarray, sample_stratum: np.ndarray,
                          strata: np.ndarray, settings: Settings, pixel_global: np.ndarray, stats: dict,
-                         known: Coverage, reuse: np.ndarray) -> Coverage:
+                         known: Coverage, reuse: np.ndarray, rays: np.ndarray) -> Coverage:
     """``pixel_coverage`` of ``pixels`` with ``drawn`` samples, where the pixels ``reuse`` (P,) bool have it in
     ``known`` already (the same rays: a pixel's coverage depends only on its samples drawn): the others' is
     traced and the two merged in key order. Counts every ray traced, the known ones included."""
     redo = np.flatnonzero(~reuse)
     none = np.zeros(0, np.int64)
     fresh = pixel_coverage(scene, tracer, pixels[redo], drawn[redo], sample_stratum[np.repeat(~reuse, drawn)], strata,
-                           settings, pixel_global) if len(redo) else Coverage(none, none, np.zeros(0), known.stride)
+                           settings, pixel_global, rays[redo]) if len(redo) else \
+        Coverage(none, none, np.zeros(0), known.stride)
     stats["aa_coverage_rays"] = stats.get("aa_coverage_rays", 0) + known.rays + fresh.rays
     kept = reuse[known.pixel]
     pixel = np.concatenate([known.pixel[kept], redo[fresh.pixel]])

@@ -67,7 +67,9 @@ class Settings:
         neighbouring edge pixels' samples under its footprint; 1 shades pixel centres only. The samples
         per unit of radiance step are the whole frame's (from every pixel of a frame of up to 65,536, from
         1,024 patches of 3 x 3 pixels spread over a larger one, where the mean is then about this), so
-        that a border or a tile allocates as the frame does.
+        that a border or a tile allocates as the frame does. With coverage rays, a pixel whose pilot
+        samples show surfaces that vary less than the step between them draws fewer
+        (``antialias.surface_spread``: the step is the coverage rays' to resolve), so the mean is at most this.
     aa_coverage_rays : int
         Camera rays per anti-aliased pixel that only find which surface they hit (no shading): the pixel
         is the sum over the surfaces under its filter (connected meshes, told apart by material too) of
