@@ -276,6 +276,41 @@ def reaches(position, pixels, width, settings):
     return (dx > 0) & (dy > 0)
 
 
+def test_a_texture_under_even_light_costs_no_samples():
+    """pool_samples with the coverage's albedo: one diffuse surface whose albedo is a slanted edge of a
+    texture (0.2 left, 0.8 right) under light that is even across it (radiance = albedo x 0.7). The mean
+    of the samples on it, scaled by the coverage rays' mean albedo over the samples' (the same weights),
+    is 0.7 times the rays' mean albedo exactly, whatever few samples fall on each side; against the exact
+    filtered texture, with 2 samples and 16 rays per pixel, its RMS error is under 0.6x that of the plain
+    pooled samples (the rays' are the error left)."""
+    width, samples, rays = 12, 2, 16
+    settings = Settings(aa_samples=samples)
+    window = (0, 0, width, width)
+    pixels = np.arange(width * width)
+    owner = np.repeat(np.arange(len(pixels)), samples)
+    truth = 0.7 * (0.2 + 0.6 * filtered_edge(pixels, width, settings))
+    errors = {"texture": [], "plain": []}
+    for seed in range(4):
+        position = filter_draws(pixels, width, rays, seed, settings)
+        albedo = 0.2 + 0.6 * slanted_edge(position)
+        coverage = coverage_of(pixels, np.zeros(len(position), np.int64), rays)
+        coverage = dataclasses.replace(coverage, albedo=np.repeat(albedo.reshape(-1, rays).mean(axis=1), 3).reshape(-1, 3))
+        shaded = np.arange(len(position)) % rays < samples
+        value = 0.7 * albedo[shaded]
+        rgba = np.stack([value, value, value, np.ones_like(value)], axis=1)
+        texture = (rgba[:, :3].copy(), np.repeat(albedo[shaded], 3).reshape(-1, 3))
+        stratum = np.zeros(len(value), np.int64)
+        scaled = pool_samples(rgba, position[shaded], owner, pixels, samples, window, settings, stratum, coverage,
+                              texture=texture)[:, 0]
+        plain = pool_samples(rgba, position[shaded], owner, pixels, samples, window, settings, stratum, coverage)[:, 0]
+        np.testing.assert_allclose(scaled, 0.7 * coverage.albedo[:, 0], rtol=1e-12)
+        assert not np.allclose(plain, scaled)
+        errors["texture"].append(np.sqrt(np.mean((scaled - truth) ** 2)))
+        errors["plain"].append(np.sqrt(np.mean((plain - truth) ** 2)))
+    print({name: float(np.mean(e)) for name, e in errors.items()})
+    assert np.mean(errors["texture"]) < 0.6 * np.mean(errors["plain"])
+
+
 def test_coverage_takes_the_jump_between_surfaces_out():
     """pool_samples with coverage: the two sides of a slanted edge are two surfaces. Where the radiance is
     constant on each, the value is exactly the coverage-weighted sum of the surfaces that samples reach
@@ -460,8 +495,8 @@ def test_a_pilot_coverage_is_reused_only_where_the_pixel_drew_no_more(monkeypatc
     with_reuse = render(scene, settings)
     monkeypatch.setattr(render_module, "_with_known_coverage",
                         lambda scene, tracer, pixels, drawn, sample_stratum, strata, settings, pixel_global, stats,
-                        known, reuse, rays: pixel_coverage(scene, tracer, pixels, drawn, sample_stratum, strata, settings,
-                                                     pixel_global, rays))
+                        known, reuse, rays, sample_albedo=None: pixel_coverage(scene, tracer, pixels, drawn, sample_stratum, strata, settings,
+                                                     pixel_global, rays, sample_albedo))
     without = render(scene, settings)
     np.testing.assert_array_equal(with_reuse.combined, without.combined)
     assert with_reuse.stats["aa_settled_pixels"] > 0

@@ -46,7 +46,7 @@ from .film import filter_offsets, offset_density
 from .parallel import map_batches, thread_count
 from .scene import Scene
 from .settings import Settings
-from .surface import scene_extent, shade_hits
+from .surface import albedo_scaled_materials, scene_extent, shade_hits, surface_albedo
 from .trace import RayTracer
 
 
@@ -382,6 +382,8 @@ class Coverage:
     fraction : (C,) float64  share of the pixel's coverage rays that see it (1 in sum per pixel).
     stride : int             ``key = pixel * stride + stratum + 1`` orders the entries.
     rays : int               coverage rays of all the pixels, their shaded samples included.
+    albedo : (C, 3) float64 or None   mean albedo over the rays that see each textured surface (NaN on the
+                                      others), where the scene has textures (``pool_samples``).
     """
 
     pixel: np.ndarray
@@ -389,6 +391,7 @@ class Coverage:
     fraction: np.ndarray
     stride: int
     rays: int = 0
+    albedo: np.ndarray | None = None
 
     @property
     def key(self) -> np.ndarray:
@@ -414,12 +417,13 @@ COVERAGE_BATCH = 1 << 18
 
 
 def pixel_coverage(scene: Scene, tracer, pixels: np.ndarray, counts: np.ndarray, sample_stratum: np.ndarray,
-                   strata: np.ndarray, settings: Settings, pixel_global: np.ndarray, rays: np.ndarray | None = None
-                   ) -> Coverage:
+                   strata: np.ndarray, settings: Settings, pixel_global: np.ndarray, rays: np.ndarray | None = None,
+                   sample_albedo: np.ndarray | None = None) -> Coverage:
     """Coverage of each supersampled pixel from ``coverage_rays(counts)`` points of its filter sequence (or
     ``rays`` (P,) int64, at least ``counts``): its shaded samples are the first ``counts`` of them
     (``sample_stratum`` (N,) int64 says what they hit, pixel-major), the rest are camera rays that only
-    find what they hit.
+    find what they hit; with ``sample_albedo`` (N, 3) (the samples' albedo where they see a textured
+    surface, NaN elsewhere) also the textured surfaces' mean albedo under the filter (``Coverage.albedo``: a texture lookup per ray, no shading).
 
     Parameters
     ----------
@@ -433,22 +437,35 @@ def pixel_coverage(scene: Scene, tracer, pixels: np.ndarray, counts: np.ndarray,
     # Pixel ranges of about COVERAGE_BATCH extra rays each.
     cuts = np.searchsorted(np.cumsum(extra), np.arange(COVERAGE_BATCH, int(extra.sum()), COVERAGE_BATCH))
     bounds = np.unique(np.concatenate([[0], cuts, [len(pixels)]]))
-    keys, hits = [], []
+    textured = None if sample_albedo is None else albedo_scaled_materials(scene)[scene.material_index]
+    keys, hits, albedo_sums = [], [], []
     for lo, hi in zip(bounds[:-1], bounds[1:]):  # batches of pixels, a million rays each
         origins, directions, _, _, _ = filter_rays(scene.camera, pixels[lo:hi], extra[lo:hi], counts[lo:hi],
                                                    settings, pixel_global)
-        triangle = tracer.intersect(origins, directions, clip_distance(scene.camera, directions)).index_triangle \
-            if len(origins) else \
-            np.zeros(0, np.int64)
+        found = tracer.intersect(origins, directions, clip_distance(scene.camera, directions)) if len(origins) \
+            else None
+        triangle = found.index_triangle if found is not None else np.zeros(0, np.int64)
         batch = np.arange(lo, hi)
         owner = np.concatenate([np.repeat(batch, counts[lo:hi]), np.repeat(batch, extra[lo:hi])])
         stratum = np.concatenate([sample_stratum[first_sample[lo]:first_sample[hi]], stratum_of(triangle, strata)])
-        key, hit = np.unique(owner * stride + stratum + 1, return_counts=True)
+        key, inverse, hit = np.unique(owner * stride + stratum + 1, return_inverse=True, return_counts=True)
         keys.append(key)
         hits.append(hit)
+        if textured is not None:
+            # Albedo of the rays on textured triangles (NaN elsewhere, and so the sums of other surfaces: a
+            # surface is one material): the samples' is known, the others' looked up.
+            offset = first_sample[hi] - first_sample[lo]
+            ray_albedo = np.full((len(owner), 3), np.nan)
+            ray_albedo[:offset] = sample_albedo[first_sample[lo]:first_sample[hi]]
+            on = np.flatnonzero(triangle >= 0)
+            on = on[textured[triangle[on]]]
+            ray_albedo[offset + on] = surface_albedo(scene, triangle[on], found.u[on], found.v[on])
+            albedo_sums.append(np.stack([np.bincount(inverse.reshape(-1), weights=ray_albedo[:, channel],
+                                                     minlength=len(key)) for channel in range(3)], axis=1))
     key, hit = np.concatenate(keys), np.concatenate(hits)
     pixel = key // stride
-    return Coverage(pixel, key % stride - 1, hit / rays[pixel], stride, int(rays.sum()))
+    albedo = np.concatenate(albedo_sums) / hit[:, None] if textured is not None else None
+    return Coverage(pixel, key % stride - 1, hit / rays[pixel], stride, int(rays.sum()), albedo)
 
 
 # Shaded samples an edge pixel draws before the rest of its allocation (with coverage rays its centre is
@@ -495,7 +512,8 @@ SPREAD_WEIGHT = 4.0
 def surface_spread(pixels: np.ndarray, shape: tuple[int, int], reach: float, coverage: Coverage,
                    pilot_rgba: np.ndarray, pilot_stratum: np.ndarray, pilot_counts: np.ndarray,
                    centre_rgba: Callable[[np.ndarray], np.ndarray], centre_stratum: Callable[[np.ndarray], np.ndarray],
-                   contrast: np.ndarray) -> np.ndarray:
+                   contrast: np.ndarray, pilot_texture: np.ndarray | None = None,
+                   centre_texture: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray:
     """How much the radiance varies within the surfaces under each pixel's filter: (P,) float64, W m^-2
     sr^-1, SPREAD_WEIGHT times the root of the sum over the surfaces its coverage rays see of their share
     times their span squared (largest channel's max - min over the points known on them there: its pilot
@@ -518,6 +536,11 @@ def surface_spread(pixels: np.ndarray, shape: tuple[int, int], reach: float, cov
     centre_rgba, centre_stratum : window-local pixels (M,) -> their centres' RGBA (M, 4) float64 and
     surface (M,) int64 (``stratum_of``).
     contrast : (P,) float64 (``edge_contrast``).
+    pilot_texture, centre_texture : with the coverage's albedo, the pilot samples' texture parts (N, 6)
+    (reflected radiance and albedo, NaN off textures: ``render._texture_part``) and the centres'. On a
+    textured surface a point's reflected radiance counts divided by its albedo, times the coverage rays'
+    mean albedo there: the texture's pattern is the coverage's to resolve (``pool_samples``), only the
+    light's variation is left to the samples.
     """
     height, width = shape
     count = len(pixels)
@@ -533,8 +556,17 @@ def surface_spread(pixels: np.ndarray, shape: tuple[int, int], reach: float, cov
     owner = np.concatenate(owners + [np.repeat(np.arange(count), pilot_counts)])
     # Points grouped by (pixel, surface), keyed as the coverage is.
     key = owner * coverage.stride + np.concatenate([centre_stratum(lattice), pilot_stratum]) + 1
+    rgba = np.concatenate([centre_rgba(lattice), pilot_rgba])
+    if coverage.albedo is not None and pilot_texture is not None and pilot_texture.shape[1] and len(key):
+        part = np.concatenate([centre_texture(lattice), pilot_texture])
+        reflected, albedo = part[:, :3], part[:, 3:]
+        entry = np.minimum(np.searchsorted(coverage.key, key), max(len(coverage.key) - 1, 0))
+        covered = np.where((coverage.key[entry] == key)[:, None], coverage.albedo[entry], np.nan) \
+            if len(coverage.key) else np.full_like(albedo, np.nan)
+        light = np.isfinite(albedo) & np.isfinite(covered) & (albedo > 0.0)
+        rgba[:, :3] += np.where(light, reflected / np.where(light, albedo, 1.0) * covered - reflected, 0.0)
     order = np.argsort(key, kind="stable")
-    key, rgba = key[order], np.concatenate([centre_rgba(lattice), pilot_rgba])[order]
+    key, rgba = key[order], rgba[order]
     if len(key) == 0:
         return np.zeros(count)
     first = np.flatnonzero(np.concatenate([[True], key[1:] != key[:-1]]))
@@ -727,7 +759,8 @@ POOL_BATCH = 32768
 
 def pool_samples(rgba: np.ndarray, position: np.ndarray, owner: np.ndarray, pixels: np.ndarray, counts,
                  window: tuple[int, int, int, int], settings: Settings, sample_stratum: np.ndarray | None = None,
-                 coverage: Coverage | None = None, lattice_density: float = 0.0) -> np.ndarray:
+                 coverage: Coverage | None = None, lattice_density: float = 0.0,
+                 texture: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Filtered RGBA of the supersampled pixels from all their samples, their neighbours' included.
 
     The filter footprints of neighbouring pixels overlap (radius 1.5 px by default), so a sample drawn for
@@ -748,6 +781,14 @@ def pool_samples(rgba: np.ndarray, position: np.ndarray, owner: np.ndarray, pixe
     others are scaled up); with p's own samples among its coverage rays every pixel keeps a surface. The
     estimate is again a ratio of consistent estimates of the same filtered value.
 
+    With ``texture`` and the coverage's albedo, a textured diffuse surface's mean is scaled by its albedo's
+    mean over the coverage rays (a texture lookup each, many) over its mean over the samples (the same
+    weights): ``m_pk + r_pk (A_pk / a_pk - 1)``, with ``r_pk`` the weighted mean of the samples' reflected
+    radiance (all of which the albedo scales: no glossy lobe). Under light that is even across the filter
+    the radiance is the albedo times one irradiance, and this is exact however few samples fall on each
+    part of the texture's pattern (a checker's jumps then cost no samples, as surface jumps cost none with
+    coverage); otherwise it is a ratio estimator, consistent (``a_pk`` tends to ``A_pk``).
+
     ``lattice_density`` > 0 says that some of the samples are pass 1's pixel centres (``owner`` -1): a
     lattice of one point per pixel, which joins the balance heuristic as a technique of that density
     everywhere (``w_ps = g_p(x_s) / (lattice_density + sum_q S_q g_q(x_s))``). The centres are shaded
@@ -767,6 +808,9 @@ def pool_samples(rgba: np.ndarray, position: np.ndarray, owner: np.ndarray, pixe
     sample_stratum : (N,) int64     surface each sample sees (-1: background), with ``coverage``.
     coverage : Coverage or None     the pixels' coverage (``pixel_coverage``).
     lattice_density : float         points per pixel area of the lattice among the samples (0: none).
+    texture : ((N, 3), (N, 3)) float64 or None   the samples' radiance that their albedo scales (their
+                                    reflected light: RGB less emission) and their albedo, NaN where they
+                                    see no textured surface (with ``coverage.albedo``).
 
     Returns
     -------
@@ -788,7 +832,11 @@ def pool_samples(rgba: np.ndarray, position: np.ndarray, owner: np.ndarray, pixe
     totals = np.zeros((len(pixels), 5))
     entries = len(coverage.pixel) if coverage is not None else 0
     coverage_key = coverage.key if coverage is not None else None
-    surface_totals = np.zeros((entries, 5))
+    textured = texture is not None and coverage is not None and coverage.albedo is not None
+    # Per entry: RGBA, the weights, and on textured surfaces the albedo-scaled radiance and the albedo.
+    surface_totals = np.zeros((entries, 11 if textured else 5))
+    if textured:
+        scaled_part = np.concatenate([texture[0], np.nan_to_num(texture[1], nan=0.0)], axis=1)
     for start in range(0, len(position), POOL_BATCH):  # batches of samples
         rows = slice(start, start + POOL_BATCH)
         point = position[rows]
@@ -831,12 +879,24 @@ def pool_samples(rgba: np.ndarray, position: np.ndarray, owner: np.ndarray, pixe
             for channel in range(5):  # RGBA and the weights
                 surface_totals[:, channel] += np.bincount(slot, weights=weight * values[sample, channel],
                                                           minlength=entries)
+            if textured:
+                part = scaled_part[rows][sample]
+                for channel in range(6):  # the albedo-scaled radiance and the albedo
+                    surface_totals[:, 5 + channel] += np.bincount(slot, weights=weight * part[:, channel],
+                                                                  minlength=entries)
     plain = totals[:, :4] / np.maximum(totals[:, 4:], 1e-300)
     if coverage is None:
         return plain
     reached = surface_totals[:, 4] > 0.0
     share = np.where(reached, coverage.fraction, 0.0)
     mean = surface_totals[:, :4] / np.where(reached, surface_totals[:, 4], 1.0)[:, None]
+    if textured:
+        scaled = surface_totals[:, 5:8] / np.where(reached, surface_totals[:, 4], 1.0)[:, None]
+        sampled = surface_totals[:, 8:11] / np.where(reached, surface_totals[:, 4], 1.0)[:, None]
+        rays = coverage.albedo
+        conditioned = reached[:, None] & np.isfinite(rays) & (sampled > 0.0)
+        ratio = np.where(conditioned, rays / np.where(conditioned, sampled, 1.0), 1.0)
+        mean[:, :3] += scaled * (ratio - 1.0)
     kept = np.bincount(coverage.pixel, weights=share, minlength=len(pixels))
     stratified = np.stack([np.bincount(coverage.pixel, weights=share * mean[:, channel], minlength=len(pixels))
                            for channel in range(4)], axis=1) / np.maximum(kept, 1e-300)[:, None]

@@ -139,6 +139,11 @@ class SurfaceBsdf:
         return value
 
 
+def glossy_materials(materials: Materials) -> np.ndarray:
+    """(M,) bool: the materials with a GGX lobe (``_closures``' rule: Principled, or a Glossy BSDF's colour)."""
+    return np.asarray(materials.principled, bool) | (np.asarray(materials.glossy_colour).max(axis=1) > 0.0)
+
+
 def _closures(materials: Materials, row: np.ndarray, base: np.ndarray, shaded: np.ndarray):
     """The GGX closures of points with material rows ``row`` (N,), grouped as Cycles' closure objects want
     them: yields (points (P,) int64, [(closure, weight (P, 1)), ...]) per group. Groups: Principled rows

@@ -37,7 +37,8 @@ from .progress import Progress
 from .scene import LOBES_ALL, Scene
 from .seen_lights import OUTLINE_SAMPLES, draw_seen_lights
 from .settings import Settings
-from .surface import SurfacePoints, scene_centre, scene_extent, shade_hits
+from .surface import (SurfacePoints, albedo_scaled_materials, has_albedo_scaled, scene_centre, scene_extent,
+                      shade_hits)
 from .trace import RayTracer
 
 # Depth written where no surface is seen (Blender's convention for an empty Z pass).
@@ -487,7 +488,8 @@ def _antialias(scene: Scene, tracer, extent: float, frames, settings: Settings, 
     # the variation within them (``surface_spread``) at the same samples per unit.
     spread = _SpreadAllocation((height, width), centre_rgba, lambda lattice: stratum_of(grid.index_triangle[lattice],
                                                                                        strata),
-                               lambda spread: samples_for(spread, share, settings.aa_samples) - (1 if covered else 0))
+                               lambda spread: samples_for(spread, share, settings.aa_samples) - (1 if covered else 0),
+                               lambda lattice: _texture_part(scene, frame.centres(lattice), frame.radiance[lattice]))
     # Each band's pass 2 and camera rays run on the pool too: the bands in flight share the budget.
     band_settings = settings.replace(memory_budget_mb=settings.memory_budget_mb / threads)
 
@@ -504,12 +506,12 @@ def _antialias(scene: Scene, tracer, extent: float, frames, settings: Settings, 
         shading = (scene, tracer, extent, band_settings, pixel_global, frames, frame.polygons, nested, counted,
                    frame.lazy_state, frame.verify, frame.edges)
         band = pixels[chosen]
-        drawn, rgba, position, triangle, pilot_coverage = _shade_until_settled(
+        drawn, rgba, position, triangle, texture, pilot_coverage = _shade_until_settled(
             band, wanted[chosen], contrast[chosen], frame.centres(band), frame.radiance[band], strata, shading, own,
             spread)
         if covered:
             values = _pool_with_coverage(scene, tracer, frame.centres, frame.radiance, band, drawn, rgba, position,
-                                         triangle, strata, settings, pixel_global, counted, pilot_coverage)
+                                         triangle, strata, settings, pixel_global, counted, pilot_coverage, texture)
         else:
             owner = np.repeat(np.arange(len(band)), drawn)
             values = pool_samples(rgba, position, owner, band, drawn, camera.window, settings)
@@ -1017,13 +1019,15 @@ def _shade_verified(surface: SurfacePoints, frames, polygons, tracer, blockers: 
 AA_SHADE_BATCH = 1 << 16
 
 
-def _shade_samples(pixels: np.ndarray, counts, *shading, first=0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _shade_samples(pixels: np.ndarray, counts, *shading, first=0
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Shade ``counts`` (int or (P,)) anti-aliasing samples of each of ``pixels`` (P,), in runs of pixels
     of about AA_SHADE_BATCH samples (``_shade_sample_batch``; ``shading``: its arguments after the counts).
 
     ``first`` (int or (P,)) is the index of each pixel's first sample in its sequence (a later batch).
-    Returns (N, 4) RGBA, (N, 2) raster positions and (N,) triangles seen (-1: none) of the N = counts.sum()
-    samples, pixel-major. A sample's value does not depend on the samples shaded with it.
+    Returns (N, 4) RGBA, (N, 2) raster positions, (N,) triangles seen (-1: none) and the texture's part
+    (``_texture_part``: (N, 6), or (N, 0) in a scene without textures) of the N = counts.sum() samples,
+    pixel-major. A sample's value does not depend on the samples shaded with it.
     """
     counts = np.broadcast_to(np.asarray(counts, dtype=np.int64), (len(pixels),))
     first = np.broadcast_to(np.asarray(first, dtype=np.int64), (len(pixels),))
@@ -1035,13 +1039,23 @@ def _shade_samples(pixels: np.ndarray, counts, *shading, first=0) -> tuple[np.nd
              for lo, hi in zip(bounds[:-1], bounds[1:])]  # runs of pixels, AA_SHADE_BATCH samples each
     if len(parts) == 1:
         return parts[0]
-    return tuple(np.concatenate([part[k] for part in parts]) for k in range(3))
+    return tuple(np.concatenate([part[k] for part in parts]) for k in range(4))
+
+
+def _texture_part(scene: Scene, surface: SurfacePoints, radiance: np.ndarray) -> np.ndarray:
+    """What ``antialias.pool_samples`` takes from textures: (N, 6) float64, the reflected ``radiance`` (N, 3)
+    at the points (what their albedo scales) and their albedo where they see a textured diffuse surface
+    (``surface.albedo_scaled_materials``; NaN elsewhere); (N, 0) where the scene has none."""
+    if not has_albedo_scaled(scene):
+        return np.zeros((len(surface), 0))
+    textured = surface.hit & albedo_scaled_materials(scene)[np.maximum(surface.material, 0)]
+    return np.concatenate([radiance, np.where(textured[:, None], surface.albedo, np.nan)], axis=1)
 
 
 def _shade_sample_batch(pixels: np.ndarray, counts: np.ndarray, scene: Scene, tracer, extent: float,
                         settings: Settings, pixel_global: np.ndarray, frames, polygons, progress: Progress,
                         stats: dict, lazy_state, verify: bool, edges: MeshEdges | None = None, first=0
-                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``_shade_samples`` of one run of pixels, all at once.
 
     ``lazy_state`` is (outer_map, outer window, outer_surface) of the lazy integrators, None otherwise.
@@ -1067,7 +1081,8 @@ def _shade_sample_batch(pixels: np.ndarray, counts: np.ndarray, scene: Scene, tr
             reference_blocker_map(sub, frames, polygons, (len(sub), 1), settings, progress)
         sub_radiance, _, _ = _illuminate(sub, frames, polygons, tracer, sub_map, settings, sub_global,
                                          progress, scene.materials, edges=edges)
-    return sample_rgba(sub_radiance, sub, scene, settings), position, sub.index_triangle
+    return sample_rgba(sub_radiance, sub, scene, settings), position, sub.index_triangle, \
+        _texture_part(scene, sub, sub_radiance)
 
 
 @dataclass(frozen=True)
@@ -1076,19 +1091,21 @@ class _SpreadAllocation:
 
     shape : (H, W) the window; centre_rgba, centre_stratum : window-local pixels (M,) -> their centres'
     RGBA (M, 4) and surfaces (M,); samples : spread (P,) -> samples still to draw (P,) int64 (the contrast
-    allocation's rule, the centre not counted where coverage makes it a sample).
+    allocation's rule, the centre not counted where coverage makes it a sample); centre_texture :
+    window-local pixels (M,) -> their centres' ``_texture_part`` (M, 6) (or (M, 0)).
     """
 
     shape: tuple[int, int]
     centre_rgba: Callable[[np.ndarray], np.ndarray]
     centre_stratum: Callable[[np.ndarray], np.ndarray]
     samples: Callable[[np.ndarray], np.ndarray]
+    centre_texture: Callable[[np.ndarray], np.ndarray]
 
 
 def _shade_until_settled(pixels: np.ndarray, drawn: np.ndarray, contrast: np.ndarray, centre: SurfacePoints,
                          centre_radiance: np.ndarray, strata: np.ndarray, shading: tuple, counted: np.ndarray | None = None,
                          spread: _SpreadAllocation | None = None
-                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple | None]:
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple | None]:
     """Shade the anti-aliasing samples of ``pixels`` (P,): a pilot of ``PILOT_SAMPLES`` each, then the rest
     of ``drawn`` (P,) only where the pilot has not settled (``antialias.settled_pixels``); with ``spread``
     and coverage rays, at most as many as the variation within the pixel's surfaces asks for
@@ -1098,28 +1115,30 @@ def _shade_until_settled(pixels: np.ndarray, drawn: np.ndarray, contrast: np.nda
     (P, 3) pass 1's points and radiance at the pixels' centres, ``strata`` (T,) ``surface_strata``,
     ``shading`` the arguments ``_shade_samples`` takes after the counts; ``counted`` (P,) bool the pixels
     whose settling the stats count (default all).
-    Returns the samples drawn per pixel (P,) int64 and ``_shade_samples``' RGBA, positions and triangles of
-    them, pixel-major: each pixel's pilot, then its further samples (the next points of its sequence); and
+    Returns the samples drawn per pixel (P,) int64 and ``_shade_samples``' RGBA, positions, triangles and
+    texture parts of them, pixel-major: each pixel's pilot, then its further samples (the next points of its sequence); and
     the pilot's coverage with the pixels (P,) bool that drew only their pilot, whose coverage it is
     (``_pool_with_coverage`` traces theirs again otherwise), or None where none was traced.
     """
     scene, tracer, settings, pixel_global, stats = shading[0], shading[1], shading[3], shading[4], shading[8]
     pilot = np.minimum(drawn, PILOT_SAMPLES) if settings.aa_settle_tolerance > 0 else drawn
     by_contrast = drawn
-    rgba, position, triangle = _shade_samples(pixels, pilot, *shading)
+    rgba, position, triangle, texture = _shade_samples(pixels, pilot, *shading)
     rest = drawn - pilot
     if not rest.any():
-        return drawn, rgba, position, triangle, None
+        return drawn, rgba, position, triangle, texture, None
     centre_rgba = sample_rgba(centre_radiance, centre, scene, settings)
     centre_stratum = stratum_of(centre.index_triangle, strata)
     pilot_stratum = stratum_of(triangle, strata)
     pilot_coverage = None
     if settings.aa_coverage_rays > 0:
-        pilot_coverage = pixel_coverage(scene, tracer, pixels, pilot, pilot_stratum, strata, settings, pixel_global)
+        pilot_coverage = pixel_coverage(scene, tracer, pixels, pilot, pilot_stratum, strata, settings, pixel_global,
+                                        sample_albedo=_albedo_of(texture))
         one_surface = covers_one_surface(pilot_coverage, centre_stratum)
         if spread is not None:
             within = surface_spread(pixels, spread.shape, settings.filter_reach, pilot_coverage, rgba, pilot_stratum,
-                                    pilot, spread.centre_rgba, spread.centre_stratum, contrast)
+                                    pilot, spread.centre_rgba, spread.centre_stratum, contrast, texture,
+                                    spread.centre_texture)
             drawn = np.maximum(np.minimum(drawn, spread.samples(within)), pilot)
             rest = drawn - pilot
     else:
@@ -1137,7 +1156,7 @@ def _shade_until_settled(pixels: np.ndarray, drawn: np.ndarray, contrast: np.nda
     known = None if pilot_coverage is None else (pilot_coverage, ~more & (rays == coverage_rays(pilot, settings)),
                                                  rays)
     if not more.any():
-        return pilot, rgba, position, triangle, known
+        return pilot, rgba, position, triangle, texture, known
     extra = _shade_samples(pixels[more], rest[more], *shading, first=pilot[more])
     final = np.where(more, drawn, pilot)
     start = np.cumsum(final) - final
@@ -1146,11 +1165,16 @@ def _shade_until_settled(pixels: np.ndarray, drawn: np.ndarray, contrast: np.nda
     pilot_rows = np.repeat(start, pilot) + _ranks(pilot)
     extra_rows = np.repeat(start + pilot, added) + _ranks(added)
     merged = []
-    for first_part, second_part in zip((rgba, position, triangle), extra):  # three arrays
+    for first_part, second_part in zip((rgba, position, triangle, texture), extra):  # four arrays
         out = np.empty((int(final.sum()),) + first_part.shape[1:], first_part.dtype)
         out[pilot_rows], out[extra_rows] = first_part, second_part
         merged.append(out)
     return (final, *merged, known)
+
+
+def _albedo_of(texture: np.ndarray | None) -> np.ndarray | None:
+    """The albedo columns (N, 3) of samples' ``_texture_part`` (N, 6), or None without textures."""
+    return None if texture is None or texture.shape[1] == 0 else texture[:, 3:6]
 
 
 def _ranks(counts: np.ndarray) -> np.ndarray:
@@ -1162,7 +1186,7 @@ def _ranks(counts: np.ndarray) -> np.ndarray:
 def _pool_with_coverage(scene: Scene, tracer, centres: Callable, radiance: np.ndarray, pixels: np.ndarray,
                         drawn: np.ndarray, rgba: np.ndarray, position: np.ndarray, triangle: np.ndarray,
                         strata: np.ndarray, settings: Settings, pixel_global: np.ndarray, stats: dict,
-                        known: tuple | None = None) -> np.ndarray:
+                        known: tuple | None = None, texture: np.ndarray | None = None) -> np.ndarray:
     """Filtered RGBA (P, 4) of the anti-aliased ``pixels`` from their ``drawn`` (P,) shaded samples (RGBA
     (N, 4), raster positions (N, 2), triangles seen (N,)), coverage rays and the centres of the pixels
     under their filters (pass 1's radiance (H * W, 3) over the window; ``centres``: window-local pixels ->
@@ -1171,44 +1195,54 @@ def _pool_with_coverage(scene: Scene, tracer, centres: Callable, radiance: np.nd
     Which surface each sample, coverage ray and centre sees: the jumps between surfaces come from the
     cheap coverage rays, and the shaded points only average within each surface (``pool_samples``).
     ``known``: a coverage traced already (``_shade_until_settled``'s pilot) and the pixels (P,) bool whose
-    coverage it is for their ``drawn`` samples; only the others' is traced here.
+    coverage it is for their ``drawn`` samples; only the others' is traced here. ``texture`` (N, 6) the
+    samples' ``_texture_part`` (None or (N, 0): no textures).
     """
+    sample_albedo = _albedo_of(texture)
     camera = scene.camera
     sample_stratum = stratum_of(triangle, strata)
     if known is None:
-        coverage = pixel_coverage(scene, tracer, pixels, drawn, sample_stratum, strata, settings, pixel_global)
+        coverage = pixel_coverage(scene, tracer, pixels, drawn, sample_stratum, strata, settings, pixel_global,
+                                  sample_albedo=sample_albedo)
         stats["aa_coverage_rays"] = stats.get("aa_coverage_rays", 0) + coverage.rays
     else:
         coverage = _with_known_coverage(scene, tracer, pixels, drawn, sample_stratum, strata, settings, pixel_global,
-                                        stats, *known)
+                                        stats, *known, sample_albedo=sample_albedo)
     lattice = lattice_pixels(pixels, camera.window_shape, settings.filter_reach)
     lattice_points = centres(lattice)
     lattice_position = np.stack(pixel_coordinates(camera, lattice), axis=1) + 0.5
     owner = np.concatenate([np.repeat(np.arange(len(pixels)), drawn), np.full(len(lattice), -1)])
+    textures = None
+    if sample_albedo is not None:
+        both = np.concatenate([texture, _texture_part(scene, lattice_points, radiance[lattice])])
+        textures = (both[:, :3], both[:, 3:])
     return pool_samples(np.concatenate([rgba, sample_rgba(radiance[lattice], lattice_points, scene, settings)]),
                         np.concatenate([position, lattice_position]), owner, pixels, drawn, camera.window, settings,
                         np.concatenate([sample_stratum, stratum_of(lattice_points.index_triangle, strata)]),
-                        coverage, lattice_density=1.0)
+                        coverage, lattice_density=1.0, texture=textures)
 
 
 def _with_known_coverage(scene: Scene, tracer, pixels: np.ndarray, drawn: np.ndarray, sample_stratum: np.ndarray,
                          strata: np.ndarray, settings: Settings, pixel_global: np.ndarray, stats: dict,
-                         known: Coverage, reuse: np.ndarray, rays: np.ndarray) -> Coverage:
+                         known: Coverage, reuse: np.ndarray, rays: np.ndarray,
+                         sample_albedo: np.ndarray | None = None) -> Coverage:
     """``pixel_coverage`` of ``pixels`` with ``drawn`` samples, where the pixels ``reuse`` (P,) bool have it in
     ``known`` already (the same rays: a pixel's coverage depends only on its samples drawn): the others' is
     traced and the two merged in key order. Counts every ray traced, the known ones included."""
     redo = np.flatnonzero(~reuse)
     none = np.zeros(0, np.int64)
     fresh = pixel_coverage(scene, tracer, pixels[redo], drawn[redo], sample_stratum[np.repeat(~reuse, drawn)], strata,
-                           settings, pixel_global, rays[redo]) if len(redo) else \
-        Coverage(none, none, np.zeros(0), known.stride)
+                           settings, pixel_global, rays[redo],
+                           None if sample_albedo is None else sample_albedo[np.repeat(~reuse, drawn)]) if len(redo) \
+        else Coverage(none, none, np.zeros(0), known.stride, 0, None if known.albedo is None else np.zeros((0, 3)))
     stats["aa_coverage_rays"] = stats.get("aa_coverage_rays", 0) + known.rays + fresh.rays
     kept = reuse[known.pixel]
     pixel = np.concatenate([known.pixel[kept], redo[fresh.pixel]])
     stratum = np.concatenate([known.stratum[kept], fresh.stratum])
     fraction = np.concatenate([known.fraction[kept], fresh.fraction])
     order = np.argsort(pixel * known.stride + stratum + 1, kind="stable")
-    return Coverage(pixel[order], stratum[order], fraction[order], known.stride, known.rays + fresh.rays)
+    albedo = None if known.albedo is None else np.concatenate([known.albedo[kept], fresh.albedo])[order]
+    return Coverage(pixel[order], stratum[order], fraction[order], known.stride, known.rays + fresh.rays, albedo)
 
 
 def _clamped_caps(surface: SurfacePoints, frames) -> set[int]:

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .bsdf import glossy_materials
 from .scene import FACING_SUN, Scene
 from .terminator import terminator_lift
 from .texture import interpolate_corner_attribute
@@ -83,6 +84,31 @@ def scene_centre(scene: Scene) -> np.ndarray:
     return 0.5 * (points.max(axis=0) + points.min(axis=0))
 
 
+def albedo_scaled_materials(scene: Scene) -> np.ndarray:
+    """(M,) bool: the materials whose albedo comes from a texture and scales all they reflect (no glossy
+    lobe), so that under even light their radiance is the albedo times one irradiance."""
+    return (scene.materials.texture_index >= 0) & ~glossy_materials(scene.materials)
+
+
+def has_albedo_scaled(scene: Scene) -> bool:
+    """Whether some triangle's material is one of ``albedo_scaled_materials``."""
+    return bool(len(scene.material_index)) and bool(albedo_scaled_materials(scene)[scene.material_index].any())
+
+
+def surface_albedo(scene: Scene, triangle: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Diffuse albedo (N, 3) float64 at barycentrics ``u``, ``v`` (N,) of triangles ``triangle`` (N,) int64 (all
+    hit): the material's, or its texture's colour at the point's UV."""
+    material = scene.material_index[triangle]
+    albedo = np.array(scene.materials.albedo[material], dtype=np.float64)
+    texture = scene.materials.texture_index[material]
+    if (texture >= 0).any():
+        uv = interpolate_corner_attribute(scene.corner_uvs, triangle, u, v)
+        for index in np.unique(texture[texture >= 0]):  # textures: a handful
+            chosen = texture == index
+            albedo[chosen] = scene.textures[index].lookup(uv[chosen])[:, :3]
+    return albedo
+
+
 def shade_hits(scene: Scene, ray_origins: np.ndarray, ray_directions: np.ndarray, index_triangle: np.ndarray,
                u: np.ndarray, v: np.ndarray, extent: float) -> SurfacePoints:
     """Surface points from primary hits (index_triangle -1 = miss), all arrays (N, ...)."""
@@ -118,15 +144,8 @@ def shade_hits(scene: Scene, ray_origins: np.ndarray, ray_directions: np.ndarray
             shading[hit] = normal
         material = scene.material_index[tri[hit]]
         material_row[hit] = material
-        albedo[hit] = scene.materials.albedo[material]
+        albedo[hit] = surface_albedo(scene, tri[hit], u[hit], v[hit])
         emission[hit] = scene.materials.emission[material]
-        texture = scene.materials.texture_index[material]
-        if (texture >= 0).any():
-            rows = np.flatnonzero(hit)
-            uv = interpolate_corner_attribute(scene.corner_uvs, tri[hit], u[hit], v[hit])
-            for index in np.unique(texture[texture >= 0]):  # textures: a handful
-                chosen = texture == index
-                albedo[rows[chosen]] = scene.textures[index].lookup(uv[chosen])[:, :3]
     offset = OFFSET_RELATIVE * np.abs(position).max(axis=1) + OFFSET_SCENE * extent
     length = np.linalg.norm(ray_directions, axis=1, keepdims=True)
     view = -ray_directions / np.maximum(length, 1e-300)
