@@ -311,6 +311,39 @@ def test_a_texture_under_even_light_costs_no_samples():
     assert np.mean(errors["texture"]) < 0.6 * np.mean(errors["plain"])
 
 
+def checker_floor(resolution=64, cells=16):
+    """plane_under_light's floor with a Closest checker texture of ``cells`` x ``cells`` texels (albedo 0.1
+    and 0.9, scene-linear) over it: a texel edge every 4 pixels at 64 px."""
+    from lazyvis_addon.core.texture import ImageTexture
+    scene = plane_under_light(resolution, light_size=2.0)
+    checker = ((np.arange(cells)[:, None] + np.arange(cells)[None, :]) % 2).astype(np.float32)
+    texels = np.ones((cells, cells, 4), np.float32)
+    texels[..., :3] = (0.1 + 0.8 * checker)[..., None]
+    corners = scene.triangles[:, :, :2]
+    return dataclasses.replace(scene, corner_uvs=(corners + 2.0) / 4.0,
+                               textures=[ImageTexture(texels, False, "Closest", "REPEAT")],
+                               materials=dataclasses.replace(scene.materials, texture_index=np.array([0])))
+
+
+def test_a_checker_floor_renders_closer_with_the_coverage_albedo(monkeypatch):
+    """End to end, at the default settings: a checker floor under a large light (irradiance smooth across
+    each pixel) against a 64-sample render. Scaling the surface means by the coverage rays' albedo takes
+    the texel edges out of the samples' error (what is left is the rays' own): less error than the same
+    render without it, with under 0.6x its samples (the spread allocation sees no jump on the checker), so
+    under 0.3x its squared error times samples (measured: 1.24 % with 26 k samples, 1.91 % with 60 k)."""
+    scene = checker_floor()
+    truth = render(scene, Settings(aa_samples=64, aa_settle_tolerance=0.0)).combined[..., :3]
+    scaled = render(scene, Settings())
+    monkeypatch.setattr(render_module, "_texture_part", lambda scene, surface, radiance: np.zeros((len(surface), 0)))
+    plain = render(scene, Settings())
+    errors = [relative_rmse(output.combined[..., :3], truth) for output in (scaled, plain)]
+    samples = [output.stats["aa_samples_shaded"] for output in (scaled, plain)]
+    print(f"checker floor: error {errors[0]:.3%} with the coverage albedo, {errors[1]:.3%} without; samples {samples}")
+    assert scaled.stats["aa_pixels"] > 0.2 * 64 * 64
+    assert errors[0] < errors[1] and samples[0] < 0.6 * samples[1]
+    assert errors[0] ** 2 * samples[0] < 0.3 * errors[1] ** 2 * samples[1]
+
+
 def test_coverage_takes_the_jump_between_surfaces_out():
     """pool_samples with coverage: the two sides of a slanted edge are two surfaces. Where the radiance is
     constant on each, the value is exactly the coverage-weighted sum of the surfaces that samples reach
