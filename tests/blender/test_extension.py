@@ -92,7 +92,7 @@ def test_extension_zip_installs_enables_and_renders(tmp_path):
     with zipfile.ZipFile(packages[0]) as archive:
         names = archive.namelist()
     leftovers = [name for name in names if ".egg-info" in name or "__pycache__" in name or name.endswith(".pyc")
-                 or name.split("/")[0] in ("tests", "bench", "tools", "sample_blends", "farm", ".venv", ".git")]
+                 or name.split("/")[0] in ("tests", "bench", "tools", "docs", "sample_blends", "farm", ".venv", ".git")]
     assert not leftovers, leftovers[:10]
     assert "blender_manifest.toml" in names and "lazyvis_addon/core/render.py" in names, names[:20]
     assert "lazyvis_addon/tiles.py" in names and "lazyvis_addon/blender/operators.py" in names  # farm tiles
