@@ -122,7 +122,8 @@ class ViewportSession:
         return self.export_error or self.renderer.error
 
     def stop(self) -> None:
-        self.renderer.cancel(wait=True, timeout=2.0)
+        """The viewport closes: cancel its render and let go of the scene's prepared structures."""
+        self.renderer.close(timeout=2.0)
 
 
 def image_rectangle(image: ViewportImage, region_height: int) -> tuple[int, int, int, int]:
