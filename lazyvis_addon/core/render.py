@@ -254,7 +254,8 @@ class PreparedScene:
         """Whether ``scene`` is the prepared scene but for its camera (the same arrays by reference: the
         viewport's steps and restarts replace the camera only) and ``settings`` pass 2 the same way."""
         return settings.uses_silhouettes == self.silhouettes and all(
-            _same_data(getattr(scene, f.name), getattr(self.source, f.name)) for f in fields(Scene) if f.name != "camera")
+            _same_data(getattr(scene, f.name), getattr(self.source, f.name))
+            for f in fields(Scene) if f.name != "camera")
 
     def acquire(self) -> None:
         """A render (or a run of them) begins to use it: it stays whole until the matching ``release``, even
