@@ -78,7 +78,9 @@ def same_camera(a: Camera | None, b: Camera | None) -> bool:
 class ViewportSession:
     """One Rendered viewport's state: the exported scene, the view's camera and settings, and the
     progressive render of their newest combination. ``on_image`` is called on the render's thread after
-    each step."""
+    each step. The renderer keeps the scene's prepared structures (ray tracer, light frames, edge tree)
+    between restarts, and what is equal of them across exports (``core.progressive``); ``stop`` lets go
+    of them."""
 
     def __init__(self, on_image=None) -> None:
         self.renderer = ProgressiveRenderer(on_image)
@@ -122,7 +124,8 @@ class ViewportSession:
         return self.export_error or self.renderer.error
 
     def stop(self) -> None:
-        self.renderer.cancel(wait=True, timeout=2.0)
+        """The viewport closes: cancel its render and let go of the scene's prepared structures."""
+        self.renderer.close(timeout=2.0)
 
 
 def image_rectangle(image: ViewportImage, region_height: int) -> tuple[int, int, int, int]:

@@ -7,6 +7,11 @@ the F12 render of the same view. Each step is a plain ``render.render`` of the s
 that resolution (``scaled_camera``): a pixel of a coarse image is ``divisor`` x ``divisor`` viewport pixels
 and lies where they do, so the viewport draws it scaled up in place.
 
+The steps share the scene's camera-independent structures (``render.prepare``: the validated scene, the ray
+tracer, the light frames, the edge tree), built once per scene: the renderer keeps them across starts
+while the scene is the same (a moved view replaces only the camera), and a new scene of equal triangles
+(a new export after a change of lights or materials) keeps the ray tracer, of equal lights too the rest.
+
 The steps run on a worker thread of their own, one after another; ``start`` cancels the work in progress
 (the core's ``Progress.check_cancel`` raises at its next chunk) and begins again from the coarsest step.
 The front end polls ``latest`` (Blender's ``view_draw``) or is told through ``on_image`` (where it asks for
@@ -23,7 +28,7 @@ from typing import Callable
 import numpy as np
 
 from .progress import Progress, RenderCancelled
-from .render import render
+from .render import PreparedScene, prepare, render
 from .scene import Camera, Scene
 from .settings import Settings
 
@@ -99,7 +104,12 @@ class ProgressiveRenderer:
     """Renders the steps of ``refinement_steps`` on a worker thread, the newest ``start`` only.
 
     ``on_image(ViewportImage)`` is called on the worker thread after each step (keep it short: Blender's
-    ``tag_redraw``); ``render_function`` is ``render.render`` (a test may wrap it).
+    ``tag_redraw``); ``render_function`` is ``render.render`` (a test may wrap it), called as
+    ``render_function(scene, settings, progress, prepared=...)``.
+
+    The prepared scene (``render.PreparedScene``) of the newest start that made one is kept for the starts
+    that follow (``prepared``) and closed when a newer one replaces it or at ``close``; each worker holds
+    the one it renders with (``acquire``), so closing it never pulls the tracer from under a step.
     """
 
     def __init__(self, on_image: Callable[[ViewportImage], None] | None = None,
@@ -112,6 +122,7 @@ class ProgressiveRenderer:
         self._generation = 0
         self._worker: threading.Thread | None = None
         self._stop = threading.Event()
+        self._prepared: PreparedScene | None = None
 
     # -- the front end's side ------------------------------------------------------------------------------
     def start(self, scene: Scene, settings: Settings) -> int:
@@ -124,7 +135,12 @@ class ProgressiveRenderer:
             self._error = None
             self._stop = threading.Event()
             stop = self._stop
-        worker = threading.Thread(target=self._run, args=(scene, settings, generation, stop),
+            # The kept scene, held for the new worker: to render with where it serves this scene, else to
+            # take what is equal from (preparing runs on the worker, not on Blender's thread).
+            base = self._prepared
+            if base is not None:
+                base.acquire()
+        worker = threading.Thread(target=self._run, args=(scene, settings, generation, stop, base),
                                   name="lazyvis-viewport", daemon=True)
         self._worker = worker
         worker.start()
@@ -139,6 +155,22 @@ class ProgressiveRenderer:
             worker.join(timeout)
             return not worker.is_alive()
         return worker is None or not worker.is_alive()
+
+    def close(self, timeout: float | None = None) -> bool:
+        """Cancel the render in progress (waiting up to ``timeout`` s for it) and close the kept prepared
+        scene (its tracer's threads stop once the worker lets go of it). Returns ``cancel``'s answer."""
+        stopped = self.cancel(wait=True, timeout=timeout)
+        with self._lock:
+            prepared, self._prepared = self._prepared, None
+        if prepared is not None:
+            prepared.close()
+        return stopped
+
+    @property
+    def prepared(self) -> PreparedScene | None:
+        """The prepared scene kept for the next start (None before the first step or after ``close``)."""
+        with self._lock:
+            return self._prepared
 
     def wait(self, timeout: float | None = None) -> bool:
         """Wait for the current render's last step; True if it has ended (finished, failed or cancelled)."""
@@ -167,13 +199,30 @@ class ProgressiveRenderer:
             return self._error
 
     # -- the worker's side ---------------------------------------------------------------------------------
-    def _run(self, scene: Scene, settings: Settings, generation: int, stop: threading.Event) -> None:
+    def _run(self, scene: Scene, settings: Settings, generation: int, stop: threading.Event,
+             base: PreparedScene | None) -> None:
         started = time.perf_counter()
         progress = _Cancellable(stop)  # made on this thread: the core asks it for cancels here
+        prepared = None  # the prepared scene this worker holds (acquired), released at the end
+        steps = refinement_steps(settings)
         try:
-            for divisor, step_settings, final in refinement_steps(settings):
+            if base is not None and base.serves(scene, settings):
+                prepared, base = base, None
+            else:
+                # Prepared with the first step's camera and settings: its memory budget check is that
+                # step's, as the step's own render would make it. Its own progress object: the warnings
+                # reach each step's output through ``render``, which repeats them.
+                first, first_settings, _ = steps[0]
+                prepared = prepare(replace(scene, camera=scaled_camera(scene.camera, first)), first_settings,
+                                   _Cancellable(stop), reuse=base)
+                prepared.acquire()
+                self._keep(prepared, generation, stop)
+                if base is not None:
+                    base.release()
+                    base = None
+            for divisor, step_settings, final in steps:
                 step_scene = replace(scene, camera=scaled_camera(scene.camera, divisor))
-                output = self.render_function(step_scene, step_settings, progress)
+                output = self.render_function(step_scene, step_settings, progress, prepared=prepared)
                 image = ViewportImage(output.combined, divisor, step_scene.camera.window, final, generation,
                                       time.perf_counter() - started)
                 with self._lock:
@@ -188,6 +237,20 @@ class ProgressiveRenderer:
             self._fail(generation, str(error))
         except Exception as error:  # noqa: BLE001 - the viewport shows it in its header, never a traceback
             self._fail(generation, f"{type(error).__name__}: {error}")
+        finally:
+            for held in (base, prepared):
+                if held is not None:
+                    held.release()
+
+    def _keep(self, prepared: PreparedScene, generation: int, stop: threading.Event) -> None:
+        """Keep a newly prepared scene for the starts that follow, closing the one it replaces, if its start
+        is still the newest and not cancelled (``close`` may have run); close it otherwise (this worker
+        still holds it until it ends)."""
+        with self._lock:
+            if generation == self._generation and not stop.is_set():
+                prepared, self._prepared = self._prepared, prepared
+        if prepared is not None:
+            prepared.close()
 
     def _fail(self, generation: int, message: str) -> None:
         with self._lock:

@@ -2,13 +2,20 @@
 
 Stages, in order: validate the scene, build the ray tracer, trace camera rays, pass 1 (the blocker map),
 pass 2 (illumination per pixel batch), compose the passes.
+
+What depends on the scene alone, not on the camera (the validated scene, the ray tracer, the light frames,
+the edge tree) is ``prepare``'s ``PreparedScene``: ``render`` builds one and lets go of it at its end, or
+takes one built before (``prepared=``) where several renders of one scene share it (the Rendered
+viewport's steps and restarts, ``progressive``), the images the same bit for bit.
 """
 
 from __future__ import annotations
 
 import resource
+import threading
 import time
-from dataclasses import dataclass, field, fields, replace
+from contextlib import contextmanager
+from dataclasses import dataclass, field, fields, is_dataclass, replace
 from typing import Callable
 
 import numpy as np
@@ -34,7 +41,7 @@ from .edge_tree import MeshEdges
 from .silhouettes import compile_kernels, pixel_batch_for, silhouette_pieces
 from .terminator import terminator_couples
 from .progress import Progress
-from .scene import LOBES_ALL, Scene
+from .scene import LOBES_ALL, Camera, Scene
 from .seen_lights import OUTLINE_SAMPLES, draw_seen_lights
 from .settings import Settings
 from .surface import (SurfacePoints, albedo_scaled_materials, has_albedo_scaled, scene_centre, scene_extent,
@@ -72,86 +79,336 @@ class RenderOutput:
     stats: dict = field(default_factory=dict)
 
 
-def render(scene: Scene, settings: Settings | None = None, progress: Progress | None = None) -> RenderOutput:
+def render(scene: Scene, settings: Settings | None = None, progress: Progress | None = None,
+           prepared: PreparedScene | None = None) -> RenderOutput:
     """Render direct illumination from polygon lights with exact soft shadows.
+
+    ``prepared``: the scene's camera-independent structures (``prepare``), kept from an earlier render of
+    the same scene (the viewport's steps and restarts); the image is the same bit for bit as without it.
+    Without it they are built here and released at the end.
 
     Raises
     ------
-    ValueError      bad input (the message names what is wrong).
+    ValueError      bad input (the message names what is wrong); ``prepared`` not prepared from ``scene``
+                    (``PreparedScene.serves``) or closed.
     MemoryError     the memory budget in ``settings`` is too small for the image.
     RenderCancelled the progress object reported a cancel.
     """
     settings = settings or Settings()
     progress = progress or Progress()
     started = time.perf_counter()
-    progress.begin_stage("Validating scene")
-    scene = scene.validated(progress)
-    # A window (a border render, a farm's tile) is rendered with a margin that anti-aliasing's decisions
-    # for its pixels read (``aa_margin``), then cropped: its pixels are the full frame's.
-    wanted_window = scene.camera.window
+    if prepared is None:
+        with prepare(scene, settings, progress) as own:  # its warnings went to ``progress`` as they came
+            return _render_prepared(own, scene.camera, settings, progress, started, fresh=True)
+    if not prepared.serves(scene, settings):
+        raise ValueError("the prepared scene was prepared from another scene or for another integrator; "
+                         "prepare this one")
+    with prepared.use():
+        for message in prepared.warnings:  # the scene's own warnings, as a render without it gives them
+            progress.warn(message)
+        return _render_prepared(prepared, scene.camera, settings, progress, started, fresh=False)
+
+
+def _frame_camera(camera: Camera, settings: Settings) -> tuple[Camera, tuple[int, int, int, int]]:
+    """The camera a render traces (``camera`` checked again; a window grown by ``aa_margin``) and the window
+    it returns (x0, y0, x1, y1). A window (a border render, a farm's tile) is rendered with a margin that
+    anti-aliasing's decisions for its pixels read, then cropped: its pixels are the full frame's."""
+    camera = replace(camera)  # __post_init__ checks it again, as ``Scene.validated`` does
+    wanted_window = camera.window
     margin = aa_margin(settings)
-    if margin and wanted_window != (0, 0, scene.camera.width, scene.camera.height):
-        scene = replace(scene, camera=replace(scene.camera, window=_grown_window(scene.camera, margin)))
-    camera = scene.camera
+    if margin and wanted_window != (0, 0, camera.width, camera.height):
+        camera = replace(camera, window=_grown_window(camera, margin))
+    return camera, wanted_window
+
+
+def _render_prepared(prepared: PreparedScene, camera: Camera, settings: Settings, progress: Progress,
+                     started: float, fresh: bool) -> RenderOutput:
+    """``render`` of ``prepared``'s scene through ``camera``: everything that depends on the camera (the
+    window and its margin, the memory budget of the frame, camera rays, pass 2, anti-aliasing, the lights
+    the camera sees). ``fresh``: ``prepared`` was built by this render (its stats count the kernels)."""
+    camera, wanted_window = _frame_camera(camera, settings)
+    scene = replace(prepared.scene, camera=camera)
     height, width = camera.window_shape
     n_pixels = height * width
     stats: dict = {"triangles": len(scene.triangles), "lights": scene.light_count, "pixels": n_pixels}
-    # The frame's own arrays and the geometry's structures are paid from the budget first (a scene too large
-    # for it fails here, before any of them is built); the batches and bands work within the rest.
+    # The frame's own arrays and the geometry's structures are paid from the budget first (``prepare``
+    # checked it before building them, for the camera it was given); the batches and bands work within
+    # the rest.
     working_mb = working_budget_mb(settings.memory_budget_mb, height, width, len(scene.triangles))
     stats["working_budget_mb"] = working_mb
     settings = settings.replace(memory_budget_mb=working_mb)
-    if scene.light_count == 0:
+    tracer, extent, frames, edges = prepared.tracer, prepared.extent, prepared.frames, prepared.edges
+    if edges is not None:
+        stats["edge_records"] = len(edges)
+        stats["kernels_compiled"] = prepared.kernels_compiled and fresh
+    # The tracer may have served earlier renders (and serve another render at the same time: a cancelled
+    # viewport step still stopping); its counter is the whole tracer's.
+    rays_before = tracer.n_rays_cast
+    pixel_global = _global_pixels(camera)
+    if settings.uses_silhouettes:
+        frame = _silhouette_frame(scene, tracer, extent, frames, settings, progress, stats, pixel_global, edges)
+    else:
+        frame = _blocker_map_frame(scene, tracer, extent, frames, settings, progress, stats, pixel_global)
+
+    resolved = None
+    if settings.aa_samples > 1 and (frame.grid.index_triangle >= 0).any():
+        resolved = _antialias(scene, tracer, extent, frames, settings, progress, stats, pixel_global, frame,
+                              wanted_window)
+    output = frame.output
+    if resolved is not None:
+        pixels, pooled, counts = resolved
+        output.combined.reshape(-1, 4)[pixels] = pooled
+        output.sample_count.reshape(-1)[pixels] = counts
+    if camera.window != wanted_window:
+        output = _cropped(output, camera.window, wanted_window)
+        scene = replace(scene, camera=replace(camera, window=wanted_window))
+        camera, pixel_global = scene.camera, _global_pixels(scene.camera)
+        stats["pixels"] = len(pixel_global)
+    if len(scene.seen):
+        # Lights the camera sees add their radiance over whatever lies behind them (Cycles: a light is no
+        # occluder for camera rays and adds no alpha).
+        reached, drawn, outlined = draw_seen_lights(scene.seen, camera, tracer, settings, pixel_global, progress)
+        output.combined.reshape(-1, 4)[reached, :3] += drawn.astype(np.float32)
+        counts = output.sample_count.reshape(-1)
+        counts[outlined] = np.maximum(counts[outlined], OUTLINE_SAMPLES)
+    stats["rays_cast"] = tracer.n_rays_cast - rays_before
+    stats["seconds"] = time.perf_counter() - started
+    stats["stage_seconds"] = dict(progress.stage_seconds)
+    stats["peak_memory_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    output.stats = stats
+    output.warnings = list(progress.warnings)
+    return output
+
+
+class _SharedTracer:
+    """A ray tracer held by one or more prepared scenes (a change of lights or materials keeps the BVH):
+    its threads stop when the last of them lets go."""
+
+    def __init__(self, tracer: RayTracer) -> None:
+        self.tracer = tracer
+        self._holders = 1
+        self._lock = threading.Lock()
+
+    def share(self) -> "_SharedTracer | None":
+        """One more holder; None once the tracer is closed (then build another)."""
+        with self._lock:
+            if self._holders == 0:
+                return None
+            self._holders += 1
+            return self
+
+    def release(self) -> None:
+        with self._lock:
+            self._holders -= 1
+            last = self._holders == 0
+        if last:
+            self.tracer.close()
+
+
+class PreparedScene:
+    """What a render builds from the scene alone, whatever the camera, kept for further renders of it.
+
+    ``prepare`` builds it; ``render(scene, settings, progress, prepared=...)`` renders the scene through any
+    camera with it (the Rendered viewport's steps at their resolutions, and its restarts while the view
+    moves), bit for bit the image of a render without it. Read-only once built, so renders on several
+    threads may share it; ``close`` (or a ``with`` block) lets go of it, and its ray tracer's threads stop
+    once the last render using it (``use``) has ended.
+
+    Attributes
+    ----------
+    source : Scene               the scene it was prepared from, its arrays by reference: a scene is not
+                                 changed in place once prepared (a change is a new Scene, as the exporter
+                                 makes; ``serves`` compares by reference, ``prepare(reuse=)`` by value).
+    scene : Scene                ``source`` validated, non-convex mesh emitters as triangles where the
+                                 integrator needs them; its camera is the source's (each render sets its own).
+    silhouettes : bool           prepared for pass 2 by silhouettes (``Settings.uses_silhouettes``): mesh
+                                 emitters and the edge tree depend on it.
+    tracer : RayTracer           Embree's BVH over ``scene.triangles``.
+    extent : float               the scene's bounding-box diagonal (world units, ``surface.scene_extent``).
+    frames : LightFrames         the light frames, ``part_of`` set.
+    edges : MeshEdges or None    the edge tree (silhouettes only).
+    kernels_compiled : bool      pass 2's kernels were compiled (not loaded from Numba's cache) here.
+    warnings : list[str]         the warnings preparing gave (a render given it repeats them).
+    reused : tuple[str, ...]     what ``prepare`` took from the scene it was given to reuse: "tracer" (the
+                                 same triangles), "lights" (and the same lights: frames and edge tree too).
+    """
+
+    def __init__(self, source: Scene, scene: Scene, silhouettes: bool, shared: _SharedTracer, extent: float,
+                 frames, edges: MeshEdges | None, kernels_compiled: bool, warnings: list[str],
+                 frame_warnings: list[str], reused: tuple[str, ...]) -> None:
+        self.source, self.scene, self.silhouettes = source, scene, silhouettes
+        self._shared = shared
+        self.extent, self.frames, self.edges = extent, frames, edges
+        self.kernels_compiled = kernels_compiled
+        self.warnings, self._frame_warnings = warnings, frame_warnings
+        self.reused = reused
+        self._lock = threading.Lock()
+        self._users = 0
+        self._closing = False
+        self._released = False
+
+    @property
+    def tracer(self) -> RayTracer:
+        return self._shared.tracer
+
+    def serves(self, scene: Scene, settings: Settings) -> bool:
+        """Whether ``scene`` is the prepared scene but for its camera (the same arrays by reference: the
+        viewport's steps and restarts replace the camera only) and ``settings`` pass 2 the same way."""
+        return settings.uses_silhouettes == self.silhouettes and all(
+            _same_data(getattr(scene, f.name), getattr(self.source, f.name))
+            for f in fields(Scene) if f.name != "camera")
+
+    def acquire(self) -> None:
+        """A render (or a run of them) begins to use it: it stays whole until the matching ``release``, even
+        if closed meanwhile. Raises ValueError once closed with no render using it (its tracer let go)."""
+        with self._lock:
+            if self._closing and self._users == 0:
+                raise ValueError("the prepared scene is closed")
+            self._users += 1
+
+    def release(self) -> None:
+        with self._lock:
+            self._users -= 1
+            free = self._closing and self._users == 0
+        if free:
+            self._free()
+
+    @contextmanager
+    def use(self):
+        """``acquire`` ... ``release`` around a block."""
+        self.acquire()
+        try:
+            yield self
+        finally:
+            self.release()
+
+    def close(self) -> None:
+        """Let go of it: its tracer now, or when the last render using it ends (until then those holding it
+        may still render with it; afterwards none). Idempotent."""
+        with self._lock:
+            self._closing = True
+            free = self._users == 0
+        if free:
+            self._free()
+
+    @property
+    def closed(self) -> bool:
+        """``close`` was called (renders holding it may still be using it)."""
+        with self._lock:
+            return self._closing
+
+    def _free(self) -> None:
+        with self._lock:
+            if self._released:
+                return
+            self._released = True
+        self._shared.release()
+
+    def __enter__(self) -> "PreparedScene":
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.close()
+
+
+def prepare(scene: Scene, settings: Settings | None = None, progress: Progress | None = None,
+            reuse: PreparedScene | None = None) -> PreparedScene:
+    """Validate ``scene`` and build what its renders share whatever the camera (``PreparedScene``): the ray
+    tracer, the light frames and, for pass 2 by silhouettes, the edge tree. Warnings go to ``progress``
+    (and into the result, which repeats them to each render given it).
+
+    ``reuse``: a scene prepared before (not closed; the caller still closes it), whose ray tracer is kept
+    where the validated triangles are equal by value, and its light frames and edge tree too where the
+    lights are as well (a new export after a change of materials or lights only). The memory budget is
+    checked first, for ``scene.camera`` at ``settings``: a scene too large for it fails before anything is
+    built.
+
+    Raises ValueError (bad input), MemoryError (budget), RenderCancelled, as ``render``.
+    """
+    settings = settings or Settings()
+    progress = progress or Progress()
+    progress.begin_stage("Validating scene")
+    warned = len(progress.warnings)
+    validated = scene.validated(progress)
+    camera, _ = _frame_camera(validated.camera, settings)
+    height, width = camera.window_shape
+    working_budget_mb(settings.memory_budget_mb, height, width, len(validated.triangles))
+    if validated.light_count == 0:
         progress.warn("the scene has no lights: surfaces render black")
-
-    scene = _emitters_as_triangles_where_needed(scene, settings, progress)
+    validated = _emitters_as_triangles_where_needed(validated, settings, progress)
+    silhouettes = settings.uses_silhouettes
     progress.begin_stage("Building BVH")
-    tracer = RayTracer(scene.triangles)
-    # Closed however the render ends (a cancel included): its thread pool would otherwise live until the
-    # exception's frames are collected.
+    shared, reused = None, ()
+    same_triangles = reuse is not None and np.array_equal(reuse.scene.triangles, validated.triangles)
+    if same_triangles:
+        shared = reuse._shared.share()
+        reused = ("tracer",) if shared is not None else ()
+    if shared is None:
+        shared = _SharedTracer(RayTracer(validated.triangles))
+    # Let go of the tracer however preparing ends (a cancel included): its threads would otherwise live
+    # until the exception's frames are collected.
     try:
-        extent = scene_extent(scene)
-
-        frames = light_frames(scene.lights, scene.facing, scene_centre(scene), extent, scene.hulls)
-        frames.part_of = hull_faces_in_scene(frames.hulls, scene.triangles)
-        if frames.hulls is not None:
-            _warn_nearby_geometry(scene, frames, progress)
-        pixel_global = _global_pixels(camera)
-        if settings.uses_silhouettes:
-            frame = _silhouette_frame(scene, tracer, extent, frames, settings, progress, stats, pixel_global)
+        if same_triangles and reuse.silhouettes == silhouettes and _equal_data(
+                (validated.lights, validated.facing, validated.hulls), (reuse.scene.lights, reuse.scene.facing,
+                                                                         reuse.scene.hulls)):
+            # The frames, the extent and the edge tree depend on the triangles and the lights only.
+            extent, frames, edges = reuse.extent, reuse.frames, reuse.edges
+            kernels_compiled, frame_warnings = False, list(reuse._frame_warnings)
+            for message in frame_warnings:
+                progress.warn(message)
+            reused += ("lights",)
         else:
-            frame = _blocker_map_frame(scene, tracer, extent, frames, settings, progress, stats, pixel_global)
+            extent = scene_extent(validated)
+            frames = light_frames(validated.lights, validated.facing, scene_centre(validated), extent, validated.hulls)
+            frames.part_of = hull_faces_in_scene(frames.hulls, validated.triangles)
+            before = len(progress.warnings)
+            if frames.hulls is not None:
+                _warn_nearby_geometry(validated, frames, progress)
+            frame_warnings = progress.warnings[before:]
+            edges, kernels_compiled = None, False
+            if silhouettes:
+                progress.begin_stage("Building edge tree")
+                edges = MeshEdges.from_triangles(validated.triangles, frames, progress.check_cancel)
+                # Numba compiles pass 2's kernels on a machine's first render (about 10 s), then its cache
+                # serves them in milliseconds: a stage of its own, so the wait is named and timed.
+                progress.begin_stage("Compiling kernels")
+                kernels_compiled = compile_kernels()
+        progress.end_stage()
+    except BaseException:
+        shared.release()
+        raise
+    return PreparedScene(scene, validated, silhouettes, shared, extent, frames, edges, kernels_compiled,
+                         progress.warnings[warned:], frame_warnings, reused)
 
-        resolved = None
-        if settings.aa_samples > 1 and (frame.grid.index_triangle >= 0).any():
-            resolved = _antialias(scene, tracer, extent, frames, settings, progress, stats, pixel_global, frame,
-                                  wanted_window)
-        output = frame.output
-        if resolved is not None:
-            pixels, pooled, counts = resolved
-            output.combined.reshape(-1, 4)[pixels] = pooled
-            output.sample_count.reshape(-1)[pixels] = counts
-        if camera.window != wanted_window:
-            output = _cropped(output, camera.window, wanted_window)
-            scene = replace(scene, camera=replace(camera, window=wanted_window))
-            camera, pixel_global = scene.camera, _global_pixels(scene.camera)
-            stats["pixels"] = len(pixel_global)
-        if len(scene.seen):
-            # Lights the camera sees add their radiance over whatever lies behind them (Cycles: a light is no
-            # occluder for camera rays and adds no alpha).
-            reached, drawn, outlined = draw_seen_lights(scene.seen, camera, tracer, settings, pixel_global, progress)
-            output.combined.reshape(-1, 4)[reached, :3] += drawn.astype(np.float32)
-            counts = output.sample_count.reshape(-1)
-            counts[outlined] = np.maximum(counts[outlined], OUTLINE_SAMPLES)
-        stats["rays_cast"] = tracer.n_rays_cast
-        stats["seconds"] = time.perf_counter() - started
-        stats["stage_seconds"] = dict(progress.stage_seconds)
-        stats["peak_memory_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-        output.stats = stats
-        output.warnings = list(progress.warnings)
-        return output
-    finally:
-        tracer.close()
+
+def _same_data(a, b) -> bool:
+    """Whether ``a`` and ``b`` hold the same data by reference: arrays over the same memory with the same
+    shape, strides and dtype (a view ``Scene.__post_init__`` makes again counts), other values equal;
+    field by field of dataclasses, item by item of lists and tuples."""
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        if not (isinstance(a, np.ndarray) and isinstance(b, np.ndarray)) or a.shape != b.shape or a.dtype != b.dtype:
+            return False
+        return a.size == 0 or (a.strides == b.strides and
+                               a.__array_interface__["data"][0] == b.__array_interface__["data"][0])
+    return _walk(a, b, _same_data)
+
+
+def _equal_data(a, b) -> bool:
+    """Whether ``a`` and ``b`` hold equal data by value (arrays: shape, dtype and values), as ``_same_data``
+    walks them."""
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.dtype == b.dtype and \
+            np.array_equal(a, b)
+    return _walk(a, b, _equal_data)
+
+
+def _walk(a, b, same: Callable) -> bool:
+    """``same`` over the fields of dataclasses and the items of lists and tuples; other values by ==."""
+    if is_dataclass(a) and not isinstance(a, type):
+        return type(a) is type(b) and all(same(getattr(a, f.name), getattr(b, f.name)) for f in fields(a))
+    if isinstance(a, (list, tuple)):
+        return type(a) is type(b) and len(a) == len(b) and all(same(x, y) for x, y in zip(a, b))
+    return a is b or (type(a) is type(b) and bool(a == b))
 
 
 @dataclass

@@ -4,6 +4,7 @@ and is tested only where one exists."""
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 from types import SimpleNamespace
 
@@ -12,13 +13,14 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from blender_helpers import add_area_light, add_camera, render_to_exr  # noqa: E402
+from blender_helpers import add_area_light, add_camera, assign, node_material, render_to_exr  # noqa: E402
 
 from lazyvis_addon.blender import viewport  # noqa: E402
 from lazyvis_addon.blender.export import export_depsgraph  # noqa: E402
 from lazyvis_addon.blender.properties import settings_from_scene  # noqa: E402
 from lazyvis_addon.core.camera import camera_rays  # noqa: E402
 from lazyvis_addon.core.progressive import ViewportImage  # noqa: E402
+from lazyvis_addon.core.render import render  # noqa: E402
 
 
 def camera_view(camera, scene, width, height):
@@ -161,6 +163,42 @@ def test_a_new_view_renders_again_and_the_same_view_does_not(scene):
     session.view(session.camera, settings_from_scene(scene))
     assert session.renderer.generation == first + 2
     assert session.renderer.wait(600.0)
+
+
+def test_a_new_export_after_a_change_of_lights_or_materials_keeps_the_ray_tracer(scene):
+    """The session's restarts after the scene is exported again: a light's change keeps the ray tracer
+    (equal triangles), a material's also the light frames and edge tree, a moved object builds them again;
+    each final image is a plain render of the new export, and stopping the session lets go of them."""
+    camera = lit_scene(scene)
+    paint = node_material("Paint", "ShaderNodeBsdfDiffuse", Color=(0.8, 0.8, 0.8))
+    assign(bpy.data.objects["Plane"], paint)
+    engine = FakeEngine()
+    session = engine.session
+    viewport.view_update(engine, camera_view(camera, scene, 32, 24), bpy.context.evaluated_depsgraph_get())
+    assert session.renderer.wait(600.0) and session.message is None
+    first = session.renderer.prepared
+
+    def exported_after(change):
+        change()
+        exported = export_depsgraph(bpy.context.evaluated_depsgraph_get(), camera=session.camera,
+                                    disk_vertices=scene.lazyvis.disk_vertices)
+        session.exported(exported.scene, settings_from_scene(scene))
+        assert session.renderer.wait(600.0) and session.message is None and session.latest.final
+        plain = render(dataclasses.replace(session.scene, camera=session.camera), session.settings)
+        np.testing.assert_array_equal(session.latest.image, plain.combined)
+        return session.renderer.prepared
+
+    light = next(obj for obj in scene.objects if obj.type == "LIGHT").data
+    lit = exported_after(lambda: setattr(light, "energy", light.energy * 2.0))
+    assert lit.reused == ("tracer",) and lit.tracer is first.tracer and first.closed
+    colour = paint.node_tree.nodes["Diffuse BSDF"].inputs["Color"]
+    painted = exported_after(lambda: setattr(colour, "default_value", (0.2, 0.5, 0.8, 1.0)))
+    assert painted.reused == ("tracer", "lights") and painted.edges is lit.edges
+    cube = bpy.data.objects["Cube"]
+    moved = exported_after(lambda: setattr(cube, "location", (0.4, 0.0, 1.0)))
+    assert moved.reused == () and moved.tracer is not lit.tracer
+    session.stop()
+    assert moved.closed and session.renderer.prepared is None
 
 
 def test_an_export_failure_is_the_viewports_message_not_a_traceback(scene):
