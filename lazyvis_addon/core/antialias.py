@@ -423,7 +423,8 @@ def pixel_coverage(scene: Scene, tracer, pixels: np.ndarray, counts: np.ndarray,
     ``rays`` (P,) int64, at least ``counts``): its shaded samples are the first ``counts`` of them
     (``sample_stratum`` (N,) int64 says what they hit, pixel-major), the rest are camera rays that only
     find what they hit; with ``sample_albedo`` (N, 3) (the samples' albedo where they see a textured
-    surface, NaN elsewhere) also the textured surfaces' mean albedo under the filter (``Coverage.albedo``: a texture lookup per ray, no shading).
+    surface, NaN elsewhere) also the textured surfaces' mean albedo under the filter (``Coverage.albedo``:
+    a texture lookup per ray, no shading).
 
     Parameters
     ----------
