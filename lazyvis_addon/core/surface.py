@@ -91,8 +91,10 @@ def albedo_scaled_materials(scene: Scene) -> np.ndarray:
 
 
 def has_albedo_scaled(scene: Scene) -> bool:
-    """Whether some triangle's material is one of ``albedo_scaled_materials``."""
-    return bool(len(scene.material_index)) and bool(albedo_scaled_materials(scene)[scene.material_index].any())
+    """Whether some material is one of ``albedo_scaled_materials``. Per material, not per triangle: it is
+    asked for every run of anti-aliasing samples, and a material no triangle uses only costs a texture
+    part of NaNs (``render._texture_part``), which changes no pixel."""
+    return bool(albedo_scaled_materials(scene).any())
 
 
 def surface_albedo(scene: Scene, triangle: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
