@@ -199,6 +199,21 @@ class Arcs:
         return Arcs(*(getattr(self, name)[index] for name in
                       ("couple", "start", "end", "normal", "enter", "leave", "jump")))
 
+    def by_couple(self, n_couples: int) -> "Arcs":
+        """The arcs sorted by couple (0 <= couple < ``n_couples``), in their order within a couple: a
+        counting sort in one compiled pass that releases the GIL. (``take(np.argsort(couple, kind="stable"))``
+        held it for a radix sort and seven gathers: on the tree at 512 px, 17 M arcs, 3 s of a one-thread
+        render, which the other render thread waited out.)"""
+        out = Arcs(np.empty_like(self.couple), np.empty_like(self.start), np.empty_like(self.end),
+                   np.empty_like(self.normal), np.empty_like(self.enter), np.empty_like(self.leave),
+                   np.empty_like(self.jump))
+        _sort_by_couple(np.ascontiguousarray(self.couple, np.int64), np.ascontiguousarray(self.start, np.float64),
+                        np.ascontiguousarray(self.end, np.float64), np.ascontiguousarray(self.normal, np.float64),
+                        np.ascontiguousarray(self.enter, np.float64), np.ascontiguousarray(self.leave, np.float64),
+                        np.ascontiguousarray(self.jump, np.int64), n_couples, out.couple, out.start, out.end,
+                        out.normal, out.enter, out.leave, out.jump)
+        return out
+
     @classmethod
     def concat(cls, parts: list["Arcs"]) -> "Arcs":
         return cls(*(np.concatenate([getattr(p, name) for p in parts]) for name in
@@ -208,6 +223,26 @@ class Arcs:
     def empty(cls) -> "Arcs":
         return cls(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0),
                    np.zeros(0), np.zeros(0, np.int64))
+
+
+@njit(cache=True, nogil=True)
+def _sort_by_couple(couple, start, end, normal, enter, leave, jump, n_couples, out_couple, out_start, out_end,
+                    out_normal, out_enter, out_leave, out_jump):
+    """``Arcs.by_couple``: the arcs (S,) written to the out arrays in couple order, stable."""
+    place = np.zeros(n_couples + 1, np.int64)
+    for a in range(len(couple)):
+        place[couple[a] + 1] += 1
+    for c in range(n_couples):
+        place[c + 1] += place[c]
+    for a in range(len(couple)):
+        row = place[couple[a]]
+        place[couple[a]] += 1
+        out_couple[row] = couple[a]
+        for k in range(3):
+            out_start[row, k] = start[a, k]
+            out_end[row, k] = end[a, k]
+            out_normal[row, k] = normal[a, k]
+        out_enter[row], out_leave[row], out_jump[row] = enter[a], leave[a], jump[a]
 
 
 def cone_of_light(directions: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -40,7 +40,7 @@ import numpy as np
 from numba import njit
 
 from . import arrangement as arrangement_module, detection as detection_module
-from .arcs import Arcs, _cone_planes
+from .arcs import Arcs, _cone_planes, _sort_by_couple
 from .blockers import _union_find
 from .arrangement import compile_arrangement, jumps_between, visible_fans
 from .emitters import compile_emitters
@@ -250,6 +250,7 @@ def compile_kernels() -> bool:
     compile_detection()
     compile_arrangement()
     _cone_planes(np.zeros((1, 3, 3)), np.zeros(1, np.int64), np.empty((1, 3, 3)), np.empty((1, 3), np.bool_))
+    Arcs.empty().by_couple(1)
     _bounding_cones(np.zeros((1, 3, 2)), np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros((1, 3)), np.zeros((1, 3)),
                     np.zeros((1, 3)), np.zeros((1, 3)), np.empty((1, 4, 3)))
     _reference_points(np.zeros((1, 3, 2)), np.zeros(1, np.int64), _REFERENCE_WEIGHTS, np.empty((1, 2)))
@@ -260,7 +261,7 @@ def compile_kernels() -> bool:
                           np.zeros((1, 2)), three, three, np.empty((1, 3, 2)))
     _union_find(np.zeros(1, np.int64), np.zeros(1, np.int64), 1)  # anti-aliasing's surfaces
     kernels = (detection_module._detect, _union_find, *compile_regions(), arrangement_module._fans,
-               arrangement_module._jumps, _cone_planes, _bounding_cones, _reference_points, _hull_rows,
+               arrangement_module._jumps, _cone_planes, _sort_by_couple, _bounding_cones, _reference_points, _hull_rows,
                *compile_edge_tree(), *compile_rng(), *compile_illumination(), *compile_ggx(), _fan_triangles_kernel, *compile_geometry(), *compile_terminator(),
                *compile_facing(), *compile_emitters())
     return any(kernel.stats.cache_misses for kernel in kernels)
@@ -457,7 +458,7 @@ def _visible_parts(surface, couple_pixel, couples, frames, edges, tracer, arcs: 
     """Regions, reference depths and the arrangement of the couples ``members`` (sorted, whose arcs
     ``arcs`` are, in query order): signed fan triangles (uv (M, 3, 2), couple (M,), sign (M,)) and whole
     polygons (couple, uv, count); adds to ``stats``."""
-    arcs = arcs.take(np.argsort(arcs.couple, kind="stable"))
+    arcs = arcs.by_couple(len(couple_pixel))
     # Regions: a couple's light, or, where many arcs cross it (foliage), the cells of a grid over it, so
     # that the arrangement's cost (pairs of arcs) follows the arcs per cell.
     region_couple, region_uv, region_count, region_arcs, region_ref_uv, cells, carry = couple_regions(
