@@ -209,33 +209,81 @@ def depth_counts(tracer, origin: np.ndarray, target: np.ndarray, own_triangle: n
     counting ``own_triangle`` (N,); where ``full`` (N,) bool is False only 0 or 1 (hidden or not) is wanted.
 
     Hits are taken one layer at a time (Embree reports the nearest): a handful of rounds. A hit on the
-    triangle just counted is the same layer met again after the step past it, and does not count.
+    triangle just counted is the same layer met again after the step past it, and does not count. Between
+    Embree's calls a compiled loop gathers the rays still going (in float32, as Embree takes them) and
+    steps them past their hits, without the GIL: as numpy passes these rounds held it for about half of
+    their time (the chairs at 512 px: 2.6 of 4.6 s), which the other render thread waited out.
     """
-    direction = target - origin
-    count = np.zeros(len(origin), np.int64)
-    active = np.arange(len(origin))
-    start = origin.copy()
-    reach = np.full(len(origin), 1.0 - 1e-6)
-    last = np.full(len(origin), -1, np.int64)
+    n = len(origin)
+    direction = np.ascontiguousarray(target - origin, np.float64)
+    start = np.array(origin, np.float64, order="C")
+    reach = np.full(n, 1.0 - 1e-6)
+    last = np.full(n, -1, np.int64)
+    count = np.zeros(n, np.int64)
+    active = np.arange(n, dtype=np.int64)
+    own = np.ascontiguousarray(own_triangle, np.int64)
+    full = np.ascontiguousarray(full, np.bool_)
+    planes = edges.in_light_planes if edges is not None else np.zeros(0, np.int64)
+    n_triangles = edges.n_triangles if edges is not None else 0
+    light = np.ascontiguousarray(light if light is not None and len(planes) else np.zeros(n, np.int64), np.int64)
+    ray_origin, ray_direction, ray_reach = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32), \
+        np.empty(n, np.float32)
+    going = n
     for _ in range(DEPTH_ROUNDS):  # depth layers: a handful
-        if len(active) == 0:
+        if going == 0:
             break
-        hits = tracer.intersect(start[active], direction[active], reach[active])
-        hit = hits.index_triangle >= 0
-        triangle = hits.index_triangle
-        counted = hit & (triangle != own_triangle[active]) & (triangle != last[active])
-        if edges is not None and len(edges.in_light_planes):  # faces in the ray's light's plane block nothing
-            key = light[active] * edges.n_triangles + np.maximum(triangle, 0)
-            where = np.minimum(np.searchsorted(edges.in_light_planes, key), len(edges.in_light_planes) - 1)
-            counted &= edges.in_light_planes[where] != key
-        count[active[counted]] += 1
-        step = np.where(hit, hits.t, 0.0) + 1e-5
-        start[active] += step[:, None] * direction[active]
-        reach[active] -= step
-        last[active] = np.where(hit, triangle, last[active])
-        more = hit & (reach[active] > 0) & (full[active] | (count[active] == 0))
-        active = active[more]
+        _gather_depth_rays(active, going, start, direction, reach, ray_origin, ray_direction, ray_reach)
+        triangle, t = tracer.nearest_float32(ray_origin[:going], ray_direction[:going], ray_reach[:going])
+        going = _step_depth_rays(active, going, np.ascontiguousarray(triangle, np.int64),
+                                 np.ascontiguousarray(t, np.float64), own, full, light, planes, n_triangles, start,
+                                 direction, reach, last, count)
     return count
+
+
+@njit(cache=True, nogil=True)
+def _gather_depth_rays(active, going, start, direction, reach, ray_origin, ray_direction, ray_reach):
+    """Rows 0 .. going - 1 of the float32 rays: the segments ``active[:going]``' current starts, directions
+    and reaches (rounded down, as ``trace`` rounds a ``tfar``)."""
+    for i in range(going):
+        a = active[i]
+        for k in range(3):
+            ray_origin[i, k] = np.float32(start[a, k])
+            ray_direction[i, k] = np.float32(direction[a, k])
+        rounded = np.float32(reach[a])
+        if rounded > reach[a]:
+            rounded = np.nextafter(rounded, np.float32(-np.inf))
+        ray_reach[i] = rounded
+
+
+@njit(cache=True, nogil=True)
+def _step_depth_rays(active, going, triangle, t, own, full, light, planes, n_triangles, start, direction, reach, last,
+                     count):
+    """One round's hits (``triangle`` (going,) int64, -1 on a miss; ``t`` float64) counted and stepped past:
+    a hit on the segment's own triangle, on the triangle it counted last, or on a face in the segment's
+    light's plane (``planes``: sorted keys light * n_triangles + triangle) does not count. Keeps in
+    ``active`` (in order) the segments still going; returns their number."""
+    kept = 0
+    for i in range(going):
+        a = active[i]
+        tri = triangle[i]
+        hit = tri >= 0
+        counted = hit and tri != own[a] and tri != last[a]
+        if counted and len(planes):
+            key = light[a] * n_triangles + tri
+            where = min(np.searchsorted(planes, key), len(planes) - 1)
+            counted = planes[where] != key
+        if counted:
+            count[a] += 1
+        step = (t[i] if hit else 0.0) + 1e-5
+        for k in range(3):
+            start[a, k] += step * direction[a, k]
+        reach[a] -= step
+        if hit:
+            last[a] = tri
+        if hit and reach[a] > 0 and (full[a] or count[a] == 0):
+            active[kept] = a
+            kept += 1
+    return kept
 
 
 # ------------------------------------------------------------------------------------------------------

@@ -129,6 +129,16 @@ class _TracerBase:
         self._trace(tfar, run)
         return hits
 
+    def nearest_float32(self, origins: np.ndarray, directions: np.ndarray, tfar: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray]:
+        """``intersect`` for rays already in Embree's float32 (``origins``, ``directions`` (N, 3) float32,
+        ``tfar`` (N,) float32, rounded down as ``intersect`` rounds it, all >= 0), for callers that gather
+        them in a compiled loop: the hit triangle (N,) int64 (-1 on a miss) and the hit ``t`` (N,) float64
+        (any value on a miss), no barycentrics. The results are ``intersect``'s for the same float32 rays.
+        """
+        hits = self.intersect(origins.astype(np.float64), directions.astype(np.float64), tfar.astype(np.float64))
+        return hits.index_triangle, hits.t
+
     def occluded(self, origins, directions, tfar=None) -> np.ndarray:
         """Whether anything lies on each ray ``origins + t * directions`` for ``0 <= t <= tfar``.
 
@@ -285,6 +295,20 @@ class RayTracer(_TracerBase):
         u = np.where(hit, result["u"].astype(np.float64), 0.0)
         v = np.where(hit, result["v"].astype(np.float64), 0.0)
         return index_triangle, t, u, v
+
+    def nearest_float32(self, origins, directions, tfar):
+        index_triangle = np.full(len(origins), -1, np.int64)
+        t = np.empty(len(origins))
+
+        def run(index_ray: np.ndarray | slice) -> None:
+            # A copy of tfar: embreex writes the hits' t into the buffer it is given.
+            result = self._embree_scene.run(origins[index_ray], directions[index_ray], dists=tfar[index_ray].copy(),
+                                            output=1)
+            index_triangle[index_ray] = result["primID"]
+            t[index_ray] = result["tfar"]
+
+        self._trace(tfar, run)
+        return index_triangle, t
 
     def _occluded_batch(self, origins, directions, tfar):
         # OCCLUDED returns int32 per ray: 0 when occluded (Embree set the ray's tfar to -inf), -1 when not.
