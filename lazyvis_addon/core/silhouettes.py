@@ -223,7 +223,8 @@ def depth_counts(tracer, origin: np.ndarray, target: np.ndarray, own_triangle: n
     active = np.arange(n, dtype=np.int64)
     own = np.ascontiguousarray(own_triangle, np.int64)
     full = np.ascontiguousarray(full, np.bool_)
-    planes = edges.in_light_planes if edges is not None else np.zeros(0, np.int64)
+    planes = np.ascontiguousarray(edges.in_light_planes if edges is not None and edges.in_light_planes is not None
+                                  else np.zeros(0), np.int64)
     n_triangles = edges.n_triangles if edges is not None else 0
     light = np.ascontiguousarray(light if light is not None and len(planes) else np.zeros(n, np.int64), np.int64)
     ray_origin, ray_direction, ray_reach = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32), \
@@ -299,6 +300,11 @@ def compile_kernels() -> bool:
     compile_arrangement()
     _cone_planes(np.zeros((1, 3, 3)), np.zeros(1, np.int64), np.empty((1, 3, 3)), np.empty((1, 3), np.bool_))
     Arcs.empty().by_couple(1)
+    one_row, no_planes = np.zeros(1, np.int64), np.zeros(0, np.int64)
+    _gather_depth_rays(one_row, 1, np.zeros((1, 3)), np.zeros((1, 3)), np.ones(1), np.empty((1, 3), np.float32),
+                       np.empty((1, 3), np.float32), np.empty(1, np.float32))
+    _step_depth_rays(one_row.copy(), 1, np.full(1, -1, np.int64), np.zeros(1), one_row, np.ones(1, np.bool_), one_row,
+                     no_planes, 0, np.zeros((1, 3)), np.zeros((1, 3)), np.ones(1), np.full(1, -1, np.int64), one_row.copy())
     _bounding_cones(np.zeros((1, 3, 2)), np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros((1, 3)), np.zeros((1, 3)),
                     np.zeros((1, 3)), np.zeros((1, 3)), np.empty((1, 4, 3)))
     _reference_points(np.zeros((1, 3, 2)), np.zeros(1, np.int64), _REFERENCE_WEIGHTS, np.empty((1, 2)))
@@ -309,7 +315,7 @@ def compile_kernels() -> bool:
                           np.zeros((1, 2)), three, three, np.empty((1, 3, 2)))
     _union_find(np.zeros(1, np.int64), np.zeros(1, np.int64), 1)  # anti-aliasing's surfaces
     kernels = (detection_module._detect, _union_find, *compile_regions(), arrangement_module._fans,
-               arrangement_module._jumps, _cone_planes, _sort_by_couple, _bounding_cones, _reference_points, _hull_rows,
+               arrangement_module._jumps, _cone_planes, _sort_by_couple, _gather_depth_rays, _step_depth_rays, _bounding_cones, _reference_points, _hull_rows,
                *compile_edge_tree(), *compile_rng(), *compile_illumination(), *compile_ggx(), _fan_triangles_kernel, *compile_geometry(), *compile_terminator(),
                *compile_facing(), *compile_emitters())
     return any(kernel.stats.cache_misses for kernel in kernels)
