@@ -481,3 +481,19 @@ def test_the_reference_point_lies_on_no_midline_of_a_parallelogram():
                 off = abs(line[0] * (r - p)[1] - line[1] * (r - p)[0]) / np.linalg.norm(line)
                 size = np.linalg.norm(uv[b] - uv[a])
                 assert off > 0.005 * size, (shape, shift, off)
+
+
+def test_arcs_sorted_by_couple_keep_their_order_within_a_couple():
+    """``Arcs.by_couple`` (the compiled counting sort) is the stable sort by couple: every arc's row moves
+    with it, arcs of one couple keep their order, couples without arcs are skipped."""
+    from lazyvis_addon.core.arcs import Arcs
+    rng = np.random.default_rng(5)
+    n = 5000
+    couple = rng.integers(0, 300, n) * 2  # odd couples have no arcs
+    arcs = Arcs(couple, rng.normal(size=(n, 3)), rng.normal(size=(n, 3)), rng.normal(size=(n, 3)),
+                rng.uniform(size=n), rng.uniform(size=n), rng.integers(-2, 3, n))
+    expected = arcs.take(np.argsort(couple, kind="stable"))
+    got = arcs.by_couple(600)
+    for name in ("couple", "start", "end", "normal", "enter", "leave", "jump"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(expected, name))
+    assert len(Arcs.empty().by_couple(3).couple) == 0
