@@ -303,8 +303,9 @@ def compile_kernels() -> bool:
     one_row, no_planes = np.zeros(1, np.int64), np.zeros(0, np.int64)
     _gather_depth_rays(one_row, 1, np.zeros((1, 3)), np.zeros((1, 3)), np.ones(1), np.empty((1, 3), np.float32),
                        np.empty((1, 3), np.float32), np.empty(1, np.float32))
-    _step_depth_rays(one_row.copy(), 1, np.full(1, -1, np.int64), np.zeros(1), one_row, np.ones(1, np.bool_), one_row,
-                     no_planes, 0, np.zeros((1, 3)), np.zeros((1, 3)), np.ones(1), np.full(1, -1, np.int64), one_row.copy())
+    _step_depth_rays(one_row.copy(), 1, np.full(1, -1, np.int64), np.zeros(1), one_row, np.ones(1, np.bool_),
+                     one_row, no_planes, 0, np.zeros((1, 3)), np.zeros((1, 3)), np.ones(1), np.full(1, -1, np.int64),
+                     one_row.copy())
     _bounding_cones(np.zeros((1, 3, 2)), np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros((1, 3)), np.zeros((1, 3)),
                     np.zeros((1, 3)), np.zeros((1, 3)), np.empty((1, 4, 3)))
     _reference_points(np.zeros((1, 3, 2)), np.zeros(1, np.int64), _REFERENCE_WEIGHTS, np.empty((1, 2)))
@@ -315,9 +316,10 @@ def compile_kernels() -> bool:
                           np.zeros((1, 2)), three, three, np.empty((1, 3, 2)))
     _union_find(np.zeros(1, np.int64), np.zeros(1, np.int64), 1)  # anti-aliasing's surfaces
     kernels = (detection_module._detect, _union_find, *compile_regions(), arrangement_module._fans,
-               arrangement_module._jumps, _cone_planes, _sort_by_couple, _gather_depth_rays, _step_depth_rays, _bounding_cones, _reference_points, _hull_rows,
-               *compile_edge_tree(), *compile_rng(), *compile_illumination(), *compile_ggx(), _fan_triangles_kernel, *compile_geometry(), *compile_terminator(),
-               *compile_facing(), *compile_emitters())
+               arrangement_module._jumps, _cone_planes, _sort_by_couple, _gather_depth_rays, _step_depth_rays,
+               _bounding_cones, _reference_points, _hull_rows, *compile_edge_tree(), *compile_rng(),
+               *compile_illumination(), *compile_ggx(), _fan_triangles_kernel, *compile_geometry(),
+               *compile_terminator(), *compile_facing(), *compile_emitters())
     return any(kernel.stats.cache_misses for kernel in kernels)
 
 
