@@ -88,7 +88,7 @@ def main() -> int:
         error = relative_rmse(out.combined[..., :3], truth)
         print(f"  adaptive {samples:3d} samples: {seconds:6.2f} s ({seconds / one_seconds:.2f}x)  relative RMSE "
               f"{error:.3%} ({error_one / error:.1f}x lower), {out.stats['aa_pixels']:,} pixels refined "
-              f"({out.stats['aa_pixels'] / (width * height):.1%})")
+              f"({out.stats['aa_pixels'] / (width * height):.1%}), {out.stats['aa_samples_shaded']:,} samples shaded")
     print("targets: error at least 4x lower, time under 2x")
     return 0
 

@@ -20,7 +20,7 @@ from typing import Callable
 
 import numpy as np
 
-from .antialias import (PILOT_SAMPLES, Coverage, FrameScale, centre_suffices, neyman_share,
+from .antialias import (PILOT_SAMPLES, Coverage, FrameScale, SurfaceStrata, centre_suffices, neyman_share,
                         patch_scale, probe_centres, probe_pixels, samples_for, covers_one_surface, cull_to_samples,
                         foreign_samples, inherit_blockers, landing_pixels, lattice_pixels, pixel_coverage,
                         pool_samples, refine_pixels, rgba_of, sample_rgba, settled_pixels, stratum_of,
@@ -1360,8 +1360,8 @@ class _SpreadAllocation:
 
 
 def _shade_until_settled(pixels: np.ndarray, drawn: np.ndarray, contrast: np.ndarray, centre: SurfacePoints,
-                         centre_radiance: np.ndarray, strata: np.ndarray, shading: tuple, counted: np.ndarray | None = None,
-                         spread: _SpreadAllocation | None = None
+                         centre_radiance: np.ndarray, strata: SurfaceStrata, shading: tuple,
+                         counted: np.ndarray | None = None, spread: _SpreadAllocation | None = None
                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple | None]:
     """Shade the anti-aliasing samples of ``pixels`` (P,): a pilot of ``PILOT_SAMPLES`` each, then the rest
     of ``drawn`` (P,) only where the pilot has not settled (``antialias.settled_pixels``); with ``spread``
@@ -1442,7 +1442,7 @@ def _ranks(counts: np.ndarray) -> np.ndarray:
 
 def _pool_with_coverage(scene: Scene, tracer, centres: Callable, radiance: np.ndarray, pixels: np.ndarray,
                         drawn: np.ndarray, rgba: np.ndarray, position: np.ndarray, triangle: np.ndarray,
-                        strata: np.ndarray, settings: Settings, pixel_global: np.ndarray, stats: dict,
+                        strata: SurfaceStrata, settings: Settings, pixel_global: np.ndarray, stats: dict,
                         known: tuple | None = None, texture: np.ndarray | None = None) -> np.ndarray:
     """Filtered RGBA (P, 4) of the anti-aliased ``pixels`` from their ``drawn`` (P,) shaded samples (RGBA
     (N, 4), raster positions (N, 2), triangles seen (N,)), coverage rays and the centres of the pixels
@@ -1480,7 +1480,7 @@ def _pool_with_coverage(scene: Scene, tracer, centres: Callable, radiance: np.nd
 
 
 def _with_known_coverage(scene: Scene, tracer, pixels: np.ndarray, drawn: np.ndarray, sample_stratum: np.ndarray,
-                         strata: np.ndarray, settings: Settings, pixel_global: np.ndarray, stats: dict,
+                         strata: SurfaceStrata, settings: Settings, pixel_global: np.ndarray, stats: dict,
                          known: Coverage, reuse: np.ndarray, rays: np.ndarray,
                          sample_albedo: np.ndarray | None = None) -> Coverage:
     """``pixel_coverage`` of ``pixels`` with ``drawn`` samples, where the pixels ``reuse`` (P,) bool have it in
@@ -1491,7 +1491,8 @@ def _with_known_coverage(scene: Scene, tracer, pixels: np.ndarray, drawn: np.nda
     fresh = pixel_coverage(scene, tracer, pixels[redo], drawn[redo], sample_stratum[np.repeat(~reuse, drawn)], strata,
                            settings, pixel_global, rays[redo],
                            None if sample_albedo is None else sample_albedo[np.repeat(~reuse, drawn)]) if len(redo) \
-        else Coverage(none, none, np.zeros(0), known.stride, 0, None if known.albedo is None else np.zeros((0, 3)))
+        else Coverage(none, none, np.zeros(0), known.stride, 0, None if known.albedo is None else np.zeros((0, 3)),
+                      known.parent)
     stats["aa_coverage_rays"] = stats.get("aa_coverage_rays", 0) + known.rays + fresh.rays
     kept = reuse[known.pixel]
     pixel = np.concatenate([known.pixel[kept], redo[fresh.pixel]])
@@ -1499,7 +1500,8 @@ def _with_known_coverage(scene: Scene, tracer, pixels: np.ndarray, drawn: np.nda
     fraction = np.concatenate([known.fraction[kept], fresh.fraction])
     order = np.argsort(pixel * known.stride + stratum + 1, kind="stable")
     albedo = None if known.albedo is None else np.concatenate([known.albedo[kept], fresh.albedo])[order]
-    return Coverage(pixel[order], stratum[order], fraction[order], known.stride, known.rays + fresh.rays, albedo)
+    return Coverage(pixel[order], stratum[order], fraction[order], known.stride, known.rays + fresh.rays, albedo,
+                    known.parent)
 
 
 def _clamped_caps(surface: SurfacePoints, frames) -> set[int]:
