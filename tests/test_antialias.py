@@ -21,11 +21,12 @@ from lazyvis_addon.core.blockers import BlockerPolygons
 from lazyvis_addon.core.demo_scenes import box_triangles, icosphere_triangles, plane_under_light, quad_triangles
 from lazyvis_addon.core.geometry import light_frames
 from lazyvis_addon.core.illumination import analytic, outgoing_radiance, visible_pieces
-from lazyvis_addon.core.render import _global_pixels, _primary
+from lazyvis_addon.core.frame import _global_pixels, _primary
 from lazyvis_addon.core.surface import scene_extent
 from lazyvis_addon.core.trace import RayTracer
 
-render_module = importlib.import_module("lazyvis_addon.core.render")  # the package exports render()
+supersampling_module = importlib.import_module("lazyvis_addon.core.supersampling")
+shading_module = importlib.import_module("lazyvis_addon.core.shading")
 antialias_module = importlib.import_module("lazyvis_addon.core.antialias")
 
 
@@ -336,7 +337,7 @@ def test_a_checker_floor_renders_closer_with_the_coverage_albedo(monkeypatch):
     scene = checker_floor()
     truth = render(scene, Settings(aa_samples=64, aa_settle_tolerance=0.0)).combined[..., :3]
     scaled = render(scene, Settings())
-    monkeypatch.setattr(render_module, "_texture_part", lambda scene, surface, radiance: np.zeros((len(surface), 0)))
+    monkeypatch.setattr(supersampling_module, "_texture_part", lambda scene, surface, radiance: np.zeros((len(surface), 0)))
     plain = render(scene, Settings())
     errors = [relative_rmse(output.combined[..., :3], truth) for output in (scaled, plain)]
     samples = [output.stats["aa_samples_shaded"] for output in (scaled, plain)]
@@ -543,14 +544,13 @@ def test_box_faces_as_strata_cut_the_error_and_the_samples(monkeypatch):
         return float(np.sqrt(np.mean((out.combined[..., :3] - truth) ** 2) / np.mean(truth ** 2)))
 
     faces = render(scene, Settings())
-    render_module = importlib.import_module("lazyvis_addon.core.render")
     whole = antialias_module.SurfaceStrata
 
     def one_per_surface(scene):
         split = surface_strata(scene)
         return whole(split.parent[split.of_triangle], np.arange(split.parent.max() + 1))
 
-    monkeypatch.setattr(render_module, "surface_strata", one_per_surface)
+    monkeypatch.setattr(supersampling_module, "surface_strata", one_per_surface)
     boxes = render(scene, Settings())
     assert faces.stats["aa_samples_shaded"] < 0.9 * boxes.stats["aa_samples_shaded"]
     assert error(faces) < error(boxes)  # 0.48 % against 0.53 %
@@ -597,11 +597,10 @@ def test_coverage_counts_what_each_ray_sees(monkeypatch):
 
 
 def test_a_pilot_coverage_is_reused_only_where_the_pixel_drew_no_more(monkeypatch):
-    """``render._with_known_coverage``: pixels that kept their pilot reuse its coverage (the same rays), the
+    """``supersampling._with_known_coverage``: pixels that kept their pilot reuse its coverage (the same rays), the
     others are traced again with all their samples; the merged coverage equals one traced afresh for all,
     entry for entry, and counts the rays of both. A whole render with and without the reuse gives the
     same pixels bit for bit."""
-    render_module = importlib.import_module("lazyvis_addon.core.render")
     scene = rods_scene(24, count=3).validated()
     tracer = RayTracer(scene.triangles)
     settings = Settings(aa_samples=4, aa_coverage_rays=8)
@@ -615,7 +614,7 @@ def test_a_pilot_coverage_is_reused_only_where_the_pixel_drew_no_more(monkeypatc
     pilot_stratum = sample_stratum[np.concatenate([np.arange(s, s + 3) for s in np.cumsum(drawn) - drawn])]
     known = pixel_coverage(scene, tracer, pixels, pilot, pilot_stratum, strata, settings, pixel_global)
     stats = {}
-    merged = render_module._with_known_coverage(scene, tracer, pixels, drawn, sample_stratum, strata, settings,
+    merged = supersampling_module._with_known_coverage(scene, tracer, pixels, drawn, sample_stratum, strata, settings,
                                                 pixel_global, stats, known, drawn == pilot,
                                                 antialias_module.coverage_rays(drawn, settings))
     fresh = pixel_coverage(scene, tracer, pixels, drawn, sample_stratum, strata, settings, pixel_global)
@@ -626,7 +625,7 @@ def test_a_pilot_coverage_is_reused_only_where_the_pixel_drew_no_more(monkeypatc
     # A render: the same image with the reuse turned off.
     scene = rods_scene(32, count=3)
     with_reuse = render(scene, settings)
-    monkeypatch.setattr(render_module, "_with_known_coverage",
+    monkeypatch.setattr(supersampling_module, "_with_known_coverage",
                         lambda scene, tracer, pixels, drawn, sample_stratum, strata, settings, pixel_global, stats,
                         known, reuse, rays, sample_albedo=None: pixel_coverage(scene, tracer, pixels, drawn, sample_stratum, strata, settings,
                                                      pixel_global, rays, sample_albedo))
@@ -677,8 +676,8 @@ def test_samples_are_verified_where_their_pixel_list_does_not_hold(monkeypatch):
     foreign = render(scene, settings)
     every = render(scene, settings.replace(verify_rays=1, refine_rounds=0))
     assert 0 < foreign.stats["aa_verified_samples"] < every.stats["aa_verified_samples"]
-    monkeypatch.setattr(render_module, "SAMPLE_VERIFY_ROUNDS", 0)
-    monkeypatch.setattr(render_module, "SAMPLE_VERIFY_RAYS", 1)
+    monkeypatch.setattr(shading_module, "SAMPLE_VERIFY_ROUNDS", 0)
+    monkeypatch.setattr(shading_module, "SAMPLE_VERIFY_RAYS", 1)
     unverified = error(render(scene, settings))
     print(f"refined pixels against exact lists: unverified {unverified:.3%}, foreign samples verified "
           f"{error(foreign):.3%}, every sample {error(every):.3%}")

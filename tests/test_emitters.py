@@ -302,15 +302,15 @@ def test_a_non_convex_emitter_is_two_lights_and_renders_as_its_triangles_do(shap
     ratio = two.combined[..., :3][lit] / exact.combined[..., :3][lit]
     assert np.abs(ratio - 1).max() < 1e-5
     # The far light takes out what passes through: without it the floor is too bright somewhere.
-    render_module = importlib.import_module("lazyvis_addon.core.render")  # (the package exports the function)
-    original = render_module.light_frames
+    prepared_module = importlib.import_module("lazyvis_addon.core.prepared")
+    original = prepared_module.light_frames
 
     def near_only(*args, **kwargs):
         frames = original(*args, **kwargs)
         frames.radiance[frames.hull_far] = 0.0
         return frames
 
-    monkeypatch.setattr(render_module, "light_frames", near_only)
+    monkeypatch.setattr(prepared_module, "light_frames", near_only)
     brighter = render(scene, CENTRES).combined[..., :3][lit] / exact.combined[..., :3][lit]
     assert brighter.max() > 1.05
 
@@ -343,7 +343,7 @@ def test_other_geometry_inside_a_non_convex_emitter_keeps_it_one_light_per_face(
 
 
 def test_the_other_integrators_take_a_non_convex_emitter_face_by_face():
-    from lazyvis_addon.core.render import _emitters_as_triangles_where_needed
+    from lazyvis_addon.core.prepared import _emitters_as_triangles_where_needed
     from lazyvis_addon.core.progress import Progress
     scene = emitter_over_floor(torus_triangles(), grouped=True).validated()
     kept = _emitters_as_triangles_where_needed(scene, CENTRES, Progress())

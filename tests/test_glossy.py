@@ -239,7 +239,7 @@ def test_reduced_domain_mc_of_a_phong_lobe_converges_to_its_analytic_value():
     from lazyvis_addon.core.illumination import sample_visible, visible_pieces
     from lazyvis_addon.core.phong import phong_polygon_integral, reflect
     from lazyvis_addon.core.progress import Progress
-    from lazyvis_addon.core.render import _primary
+    from lazyvis_addon.core.frame import _primary
     from lazyvis_addon.core.surface import scene_extent
     from lazyvis_addon.core.trace import RayTracer
 

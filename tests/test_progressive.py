@@ -1,6 +1,6 @@
 """The viewport's progressive renderer (issue 19): each step is a plain render at its resolution, the last
 one the render at the given settings, a new start cancels the old, errors end up as a message; the steps
-and later starts share the scene's prepared structures (``render.prepare``) without changing a pixel, and a
+and later starts share the scene's prepared structures (``prepared.prepare``) without changing a pixel, and a
 changed scene is never served stale ones."""
 
 import dataclasses
@@ -18,7 +18,7 @@ from lazyvis_addon.core.camera import camera_rays
 from lazyvis_addon.core.demo_scenes import icosphere_triangles, look_at, quad_triangles
 from lazyvis_addon.core.emitters import group_mesh_emitters
 from lazyvis_addon.core.progressive import DIVISORS, ProgressiveRenderer, refinement_steps, scaled_camera
-from lazyvis_addon.core.render import prepare
+from lazyvis_addon.core.prepared import prepare
 
 
 def test_a_coarse_pixel_looks_where_its_block_of_viewport_pixels_does():

@@ -18,8 +18,8 @@ from lazyvis_addon.core.demo_scenes import plane_under_light, quad_triangles
 from lazyvis_addon.core.geometry import light_frames
 from lazyvis_addon.core.illumination import analytic, outgoing_radiance, visible_pieces
 from lazyvis_addon.core.antialias import FULL_PROBE_PIXELS
-from lazyvis_addon.core.render import (FRAME_PIXEL_BYTES, MIN_WORKING_MB, _primary, band_rows_for, geometry_mb,
-                                       working_budget_mb)
+from lazyvis_addon.core.frame import (FRAME_PIXEL_BYTES, MIN_WORKING_MB, _primary, band_rows_for, geometry_mb,
+                                      working_budget_mb)
 from lazyvis_addon.core.settings import VISIBILITY_METHODS
 from lazyvis_addon.core.surface import scene_extent
 from lazyvis_addon.core.trace import RayTracer
@@ -288,12 +288,12 @@ def test_runs_of_anti_aliasing_samples_and_coverage_rays_do_not_change_the_image
     batches of 61 rays (odd, so runs split pixels' samples and pass 2's groups differently) every pass is
     the same bit for bit, the samples and rays counted the same."""
     import importlib
-    render_module = importlib.import_module("lazyvis_addon.core.render")  # the package's name is the function
+    supersampling_module = importlib.import_module("lazyvis_addon.core.supersampling")
     antialias_module = importlib.import_module("lazyvis_addon.core.antialias")
     scene = demo_scenes.floating_boxes(resolution=48, n_boxes=9)
     reference = render(scene, Settings(threads=2))
     assert reference.stats["aa_samples_shaded"] > 10 * 97 and reference.stats["aa_coverage_rays"] > 10 * 61
-    monkeypatch.setattr(render_module, "AA_SHADE_BATCH", 97)
+    monkeypatch.setattr(supersampling_module, "AA_SHADE_BATCH", 97)
     monkeypatch.setattr(antialias_module, "COVERAGE_BATCH", 61)
     out = render(scene, Settings(threads=2))
     for name in PASSES:

@@ -27,7 +27,7 @@ radiance for the allocation, one that sees another surface as black).
 A sample's inherited list is cut to the pairs that overlap at the sample (``cull_to_samples``; a closed
 convex part's pairs stay, as pass 2 clips by the part's whole silhouette). It need not hold where the
 sample sees another surface than the pixel's centre (``foreign_samples``): the render verifies those
-samples with shadow rays (render._shade_verified).
+samples with shadow rays (shading._shade_verified).
 """
 
 from __future__ import annotations
@@ -586,7 +586,7 @@ def surface_spread(pixels: np.ndarray, shape: tuple[int, int], reach: float, cov
     surface (M,) int64 (``stratum_of``).
     contrast : (P,) float64 (``edge_contrast``).
     pilot_texture, centre_texture : with the coverage's albedo, the pilot samples' texture parts (N, 6)
-    (reflected radiance and albedo, NaN off textures: ``render._texture_part``) and the centres'. On a
+    (reflected radiance and albedo, NaN off textures: ``supersampling._texture_part``) and the centres'. On a
     textured surface a point's reflected radiance counts divided by its albedo, times the coverage rays'
     mean albedo there: the texture's pattern is the coverage's to resolve (``pool_samples``), only the
     light's variation is left to the samples.

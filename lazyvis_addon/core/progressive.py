@@ -7,7 +7,7 @@ the F12 render of the same view. Each step is a plain ``render.render`` of the s
 that resolution (``scaled_camera``): a pixel of a coarse image is ``divisor`` x ``divisor`` viewport pixels
 and lies where they do, so the viewport draws it scaled up in place.
 
-The steps share the scene's camera-independent structures (``render.prepare``: the validated scene, the ray
+The steps share the scene's camera-independent structures (``prepared.prepare``: the validated scene, the ray
 tracer, the light frames, the edge tree), built once per scene: the renderer keeps them across starts
 while the scene is the same (a moved view replaces only the camera), and a new scene of equal triangles
 (a new export after a change of lights or materials) keeps the ray tracer, of equal lights too the rest.
@@ -28,7 +28,8 @@ from typing import Callable
 import numpy as np
 
 from .progress import Progress, RenderCancelled
-from .render import PreparedScene, prepare, render
+from .prepared import PreparedScene, prepare
+from .render import render
 from .scene import Camera, Scene
 from .settings import Settings
 
@@ -107,7 +108,7 @@ class ProgressiveRenderer:
     ``tag_redraw``); ``render_function`` is ``render.render`` (a test may wrap it), called as
     ``render_function(scene, settings, progress, prepared=...)``.
 
-    The prepared scene (``render.PreparedScene``) of the newest start that made one is kept for the starts
+    The prepared scene (``prepared.PreparedScene``) of the newest start that made one is kept for the starts
     that follow (``prepared``) and closed when a newer one replaces it or at ``close``; each worker holds
     the one it renders with (``acquire``), so closing it never pulls the tracer from under a step.
     """

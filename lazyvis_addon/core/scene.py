@@ -56,7 +56,7 @@ class Camera:
         ``(x0, y0, x1, y1)`` pixel window of the full frame to render (x to the right, y down from the top
         row, exclusive ends): a border or a tile. Random numbers use full-frame pixel coordinates, and
         anti-aliasing renders the margin its pixels read and allocates samples at the frame's scale
-        (``render.aa_margin``, ``antialias.FrameScale``), so a window renders exactly the pixels of the
+        (``frame.aa_margin``, ``antialias.FrameScale``), so a window renders exactly the pixels of the
         full frame (with the Blocker Map visibility, up to what its flood fill finds outside the window).
     clip_start, clip_end : float
         Blender's Clip Start and End (m, along the viewing axis): as in Cycles, camera rays start on the

@@ -53,7 +53,7 @@ class Settings:
         exactly only without verification.
         Anti-aliasing samples that see another surface than their pixel's centre (whose inherited list
         is made for the wrong surface) are always verified, every sample when this is > 0: 4 rays each
-        (``render.SAMPLE_VERIFY_RAYS``), a pair found at one joining all the pixel's samples.
+        (``shading.SAMPLE_VERIFY_RAYS``), a pair found at one joining all the pixel's samples.
     refine_rounds : int
         How many times verification may add blockers and re-shade.
     mc_samples : int
@@ -118,7 +118,7 @@ class Settings:
         many pixels of the frame around it, so that blockers found just outside the window flood into it
         as they would in the full frame. A margin as large as the frame makes a window exactly equal to
         the full frame's pixels. The default visibility (silhouettes) needs none: a window is always the
-        frame's pixels, its anti-aliasing's own margin worked out from the filter (``render.aa_margin``).
+        frame's pixels, its anti-aliasing's own margin worked out from the filter (``frame.aa_margin``).
     """
 
     integrator: str = "analytic"

@@ -93,7 +93,7 @@ def albedo_scaled_materials(scene: Scene) -> np.ndarray:
 def has_albedo_scaled(scene: Scene) -> bool:
     """Whether some material is one of ``albedo_scaled_materials``. Per material, not per triangle: it is
     asked for every run of anti-aliasing samples, and a material no triangle uses only costs a texture
-    part of NaNs (``render._texture_part``), which changes no pixel."""
+    part of NaNs (``supersampling._texture_part``), which changes no pixel."""
     return bool(albedo_scaled_materials(scene).any())
 
 
