@@ -247,7 +247,7 @@ def print_table(rows) -> None:
         one = row.get("one_thread_seconds")
         threads = "" if one is None else f"{one / row['core_seconds']:.2f}x"
         print(f"| {row['scene']} | {row['width']}x{row['height']} | {row['lazyvis_seconds']:.2f} s | "
-              f"{error} | {row['cycles_seconds']:.1f} s ({row['target']:.0%}, "
+              f"{error} | {row['cycles_seconds']:.1f} s ({100 * row['target']:.3g}%, "
               f"{row['cycles_samples_needed']:.0f} spp) | **{row['ratio']:.1f}x** | {row['floor_seconds']:.2f} s | "
               f"{row['core_seconds'] / max(row['floor_seconds'], 1e-9):.0f}x | "
               f"{threads} |")
