@@ -21,7 +21,7 @@ from lazyvis_addon.core.blockers import BlockerPolygons
 from lazyvis_addon.core.demo_scenes import box_triangles, icosphere_triangles, plane_under_light, quad_triangles
 from lazyvis_addon.core.geometry import light_frames
 from lazyvis_addon.core.illumination import analytic, outgoing_radiance, visible_pieces
-from lazyvis_addon.core.frame import _global_pixels, _primary
+from lazyvis_addon.core.frame import _primary, global_pixels
 from lazyvis_addon.core.surface import scene_extent
 from lazyvis_addon.core.trace import RayTracer
 
@@ -53,7 +53,7 @@ def shade_subsamples(scene, settings, lists, culled=None, merge=True, foreign=No
     frames = light_frames(scene.lights)
     polygons = BlockerPolygons.from_triangles(scene.triangles, merge=merge)
     shape = scene.camera.window_shape
-    pixel_global = _global_pixels(scene.camera)
+    pixel_global = global_pixels(scene.camera)
     pixels = np.flatnonzero(surface.hit)
     sub, position, _ = subpixel_samples(scene, tracer, extent, pixels, settings, pixel_global)
     landing = landing_pixels(position)
@@ -564,7 +564,7 @@ def test_coverage_counts_what_each_ray_sees(monkeypatch):
     scene = rods_scene(24, count=3).validated()
     tracer = RayTracer(scene.triangles)
     settings = Settings(aa_samples=4, aa_coverage_rays=8)
-    pixel_global = _global_pixels(scene.camera)
+    pixel_global = global_pixels(scene.camera)
     pixels = np.arange(24 * 24)
     counts = np.tile([1, 2, 3, 11], len(pixels) // 4)  # 8 rays, and 4 per sample beyond
     strata = surface_strata(scene)
@@ -604,7 +604,7 @@ def test_a_pilot_coverage_is_reused_only_where_the_pixel_drew_no_more(monkeypatc
     scene = rods_scene(24, count=3).validated()
     tracer = RayTracer(scene.triangles)
     settings = Settings(aa_samples=4, aa_coverage_rays=8)
-    pixel_global = _global_pixels(scene.camera)
+    pixel_global = global_pixels(scene.camera)
     pixels = np.arange(24 * 24)
     strata = surface_strata(scene)
     pilot = np.full(len(pixels), 3)
@@ -644,7 +644,7 @@ def test_samples_spread_as_far_as_cycles_pixel_filter_type():
     for filter_type in ("BOX", "BLACKMAN_HARRIS", "GAUSSIAN"):
         settings = Settings(aa_samples=64, filter_width=2.0, filter_type=filter_type)
         sub, position, _ = subpixel_samples(scene, tracer, scene_extent(scene), pixels, settings,
-                                            _global_pixels(scene.camera))
+                                            global_pixels(scene.camera))
         landing = landing_pixels(position)
         parent = np.stack([pixels % 16, pixels // 16], axis=1).repeat(64, axis=0)
         reach[filter_type] = np.abs(landing - parent).max()
@@ -765,7 +765,7 @@ def test_pixels_with_different_counts_draw_the_prefixes_of_their_sequences():
     scene = plane_under_light(resolution=8).validated()
     tracer = RayTracer(scene.triangles)
     settings = Settings(aa_samples=4)
-    pixel_global = _global_pixels(scene.camera)
+    pixel_global = global_pixels(scene.camera)
     pixels, counts = np.array([3, 9, 40]), np.array([2, 7, 4])
     _, position, identity = subpixel_samples(scene, tracer, scene_extent(scene), pixels, settings, pixel_global,
                                              counts)
@@ -864,12 +864,12 @@ def test_centre_suffices_where_the_narrow_filter_sees_one_untextured_triangle():
         pixels = np.arange(size * size)
         seen = _primary_triangle(scene).ravel()
         assert len(np.unique(seen[pixels % size == column])) == 1  # the centres see the seam's left side
-        alone = centre_suffices(scene, tracer, pixels, seen, narrow, _global_pixels(scene.camera))
+        alone = centre_suffices(scene, tracer, pixels, seen, narrow, global_pixels(scene.camera))
         assert not alone[pixels % size == column].any()
         assert alone[pixels % size != column].mean() > 0.95
         textured = dataclasses.replace(scene, materials=dataclasses.replace(scene.materials,
                                                                             texture_index=np.array([0])))
-        assert not centre_suffices(textured, tracer, pixels, seen, narrow, _global_pixels(scene.camera)).any()
-        assert not centre_suffices(scene, tracer, pixels, seen, Settings(), _global_pixels(scene.camera)).any()
+        assert not centre_suffices(textured, tracer, pixels, seen, narrow, global_pixels(scene.camera)).any()
+        assert not centre_suffices(scene, tracer, pixels, seen, Settings(), global_pixels(scene.camera)).any()
     finally:
         tracer.close()

@@ -27,7 +27,7 @@ radiance for the allocation, one that sees another surface as black).
 A sample's inherited list is cut to the pairs that overlap at the sample (``cull_to_samples``; a closed
 convex part's pairs stay, as pass 2 clips by the part's whole silhouette). It need not hold where the
 sample sees another surface than the pixel's centre (``foreign_samples``): the render verifies those
-samples with shadow rays (shading._shade_verified).
+samples with shadow rays (shading.shade_verified).
 """
 
 from __future__ import annotations

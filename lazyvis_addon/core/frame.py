@@ -1,10 +1,10 @@
 """The frame of pixel centres: pass 1 and pass 2 at every pixel's centre, band by band, composed into
 the image and its passes (``RenderOutput``).
 
-``_primary`` / ``_surface_points`` trace the camera rays (what each pixel's centre sees);
-``_silhouette_frame`` shades the centres by silhouettes (the default: the edge tree finds every edge that
+``_primary`` / ``surface_points`` trace the camera rays (what each pixel's centre sees);
+``silhouette_frame`` shades the centres by silhouettes (the default: the edge tree finds every edge that
 can cross a light, ``silhouettes`` turns them into the visible part of each light) in bands of rows whose
-size the memory budget sets (``working_budget_mb``, ``band_rows_for``); ``_blocker_map_frame`` is the
+size the memory budget sets (``working_budget_mb``, ``band_rows_for``); ``blocker_map_frame`` is the
 paper's route (a blocker map seeded by shadow rays, ``blocker_map``, then blocker subtraction). Both
 return a ``ShadedFrame``: the output so far and what anti-aliasing (``supersampling``) needs of it.
 """
@@ -25,8 +25,8 @@ from .parallel import map_batches, thread_count
 from .progress import Progress
 from .scene import LOBES_ALL, Camera, Scene
 from .settings import Settings
-from .shading import (MIN_SHARED_BATCH, _clamped_caps, _illuminate, _near_hull_misses, _warn_clamped_caps,
-                      _warn_near_hulls)
+from .shading import (MIN_SHARED_BATCH, clamped_caps, illuminate, near_hull_misses, warn_clamped_caps,
+                      warn_near_hulls)
 from .silhouettes import compile_kernels
 from .surface import SurfacePoints, shade_hits
 
@@ -62,7 +62,7 @@ class RenderOutput:
     stats: dict = field(default_factory=dict)
 
 
-def _frame_camera(camera: Camera, settings: Settings) -> tuple[Camera, tuple[int, int, int, int]]:
+def frame_camera(camera: Camera, settings: Settings) -> tuple[Camera, tuple[int, int, int, int]]:
     """The camera a render traces (``camera`` checked again; a window grown by ``aa_margin``) and the window
     it returns (x0, y0, x1, y1). A window (a border render, a farm's tile) is rendered with a margin that
     anti-aliasing's decisions for its pixels read, then cropped: its pixels are the full frame's."""
@@ -181,7 +181,7 @@ def band_rows_for(memory_budget_mb: float, width: int) -> int:
     return max(1, int(memory_budget_mb * (1 << 20) * BAND_BUDGET_SHARE // (BAND_PIXEL_BYTES * max(width, 1))))
 
 
-def _silhouette_frame(scene: Scene, tracer, extent: float, frames, settings: Settings, progress: Progress,
+def silhouette_frame(scene: Scene, tracer, extent: float, frames, settings: Settings, progress: Progress,
                       stats: dict, pixel_global: np.ndarray, edges: MeshEdges | None = None) -> ShadedFrame:
     """Camera rays, pass 2 by silhouettes and the composed passes, band after band of rows: a band's
     centres live only while it is shaded, so memory follows the band (``band_rows_for``), not the frame.
@@ -222,11 +222,11 @@ def _silhouette_frame(scene: Scene, tracer, extent: float, frames, settings: Set
         window = (x0, y0 + first_row, x1, y0 + last_row)
         surface = _primary(scene, tracer, extent, settings, progress, window, stage=(n_pixels, rows.start))
         if frames.any_facing:
-            clamped |= _clamped_caps(surface, frames)
+            clamped |= clamped_caps(surface, frames)
         if frames.hulls is not None:
-            for hull, count in _near_hull_misses(surface, frames).items():
+            for hull, count in near_hull_misses(surface, frames).items():
                 near_hulls[hull] = near_hulls.get(hull, 0) + count
-        band, band_stats, _ = _illuminate(surface, frames, None, tracer, None, settings, pixel_global[rows], progress,
+        band, band_stats, _ = illuminate(surface, frames, None, tracer, None, settings, pixel_global[rows], progress,
                                           scene.materials, False, edges, stage=(n_pixels, rows.start))
         progress.begin_stage("Composing passes", n_pixels, rows.start)
         radiance[rows] = band
@@ -248,8 +248,8 @@ def _silhouette_frame(scene: Scene, tracer, extent: float, frames, settings: Set
         del surface, band  # before the next band's are made: one band's centres at a time
     progress.end_stage()
     stats["bands"] = -(-height // rows_per_band)
-    _warn_clamped_caps(clamped, progress)
-    _warn_near_hulls(near_hulls, progress)
+    warn_clamped_caps(clamped, progress)
+    warn_near_hulls(near_hulls, progress)
     # The passes' blocker count becomes the silhouette arcs crossing the pixel's lights.
     stats["missed_pairs_found"] = []
     stats["pairs_stored"] = int(arcs_per_pixel.sum(dtype=np.int64))
@@ -261,11 +261,11 @@ def _silhouette_frame(scene: Scene, tracer, extent: float, frames, settings: Set
     def centres(pixels: np.ndarray) -> SurfacePoints:
         if kept is not None:
             return kept.take(pixels)
-        return _surface_points(scene, tracer, extent, settings, *pixel_coordinates(camera, pixels))
+        return surface_points(scene, tracer, extent, settings, *pixel_coordinates(camera, pixels))
     return ShadedFrame(output, radiance, grid, centres, rows_per_band, edges=edges)
 
 
-def _blocker_map_frame(scene: Scene, tracer, extent: float, frames, settings: Settings, progress: Progress,
+def blocker_map_frame(scene: Scene, tracer, extent: float, frames, settings: Settings, progress: Progress,
                        stats: dict, pixel_global: np.ndarray) -> ShadedFrame:
     """Camera rays, pass 1 (the paper's blocker map, or the reference's every-triangle lists), pass 2 and
     the composed passes over the whole window at once (the frame is not split into bands here)."""
@@ -282,7 +282,7 @@ def _blocker_map_frame(scene: Scene, tracer, extent: float, frames, settings: Se
         outer_surface = _primary(scene, tracer, extent, settings, progress, outer)
         outer_shape = (outer[3] - outer[1], outer[2] - outer[0])
         n_outer = outer_shape[0] * outer_shape[1]
-        outer_global = _global_pixels(camera, outer)
+        outer_global = global_pixels(camera, outer)
         outer_map = build_blocker_map(outer_surface, frames, polygons, tracer, outer_shape, outer_global,
                                       settings, progress)
         inner = _inner_indices(camera.window, outer)
@@ -296,9 +296,9 @@ def _blocker_map_frame(scene: Scene, tracer, extent: float, frames, settings: Se
             stats.update(blockers.stats)
 
     if frames.any_facing:
-        _warn_clamped_caps(_clamped_caps(surface, frames), progress)
+        warn_clamped_caps(clamped_caps(surface, frames), progress)
     if frames.hulls is not None:
-        _warn_near_hulls(_near_hull_misses(surface, frames), progress)
+        warn_near_hulls(near_hull_misses(surface, frames), progress)
     if not frames.cast_shadow.all():
         progress.warn("lights with Cast Shadow off cast shadows with the paper's blocker maps and the Monte Carlo "
                       "integrators; the default silhouettes honour it")
@@ -306,7 +306,7 @@ def _blocker_map_frame(scene: Scene, tracer, extent: float, frames, settings: Se
         progress.warn("lights' Ray Visibility (Diffuse, Glossy) is honoured by the Analytic and Reference "
                       "integrators; the Monte Carlo integrators light every lobe")
     verify = lazy and settings.verify_rays > 0 and len(frames) > 0
-    radiance, pass2_stats, missed = _illuminate(surface, frames, polygons, tracer, blockers, settings, pixel_global,
+    radiance, pass2_stats, missed = illuminate(surface, frames, polygons, tracer, blockers, settings, pixel_global,
                                                 progress, scene.materials, verify)
     stats.update(pass2_stats)
     stats["missed_pairs_found"] = []
@@ -330,7 +330,7 @@ def _blocker_map_frame(scene: Scene, tracer, extent: float, frames, settings: Se
         outer_map, blockers = merged, window_map
         if len(changed) == 0:
             break
-        part, part_stats, missed = _illuminate(surface.take(changed), frames, polygons, tracer,
+        part, part_stats, missed = illuminate(surface.take(changed), frames, polygons, tracer,
                                                window_map.crop(changed, n_window), settings, pixel_global[changed],
                                                progress, scene.materials, verify)
         radiance[changed] = part
@@ -400,7 +400,7 @@ def _folded_umbra(frames, umbra: np.ndarray, n_lights: int) -> np.ndarray:
     return folded
 
 
-def _global_pixels(camera, window=None) -> np.ndarray:
+def global_pixels(camera, window=None) -> np.ndarray:
     xs, ys = window_pixels(camera, window)
     return ys * camera.width + xs
 
@@ -440,12 +440,12 @@ def _primary(scene: Scene, tracer, extent: float, settings: Settings, progress: 
     xs, ys = window_pixels(scene.camera, window)
     total, done = stage if stage is not None else (len(xs), 0)
     progress.begin_stage("Camera rays", total, done)
-    surface = _surface_points(scene, tracer, extent, settings, xs, ys, progress)
+    surface = surface_points(scene, tracer, extent, settings, xs, ys, progress)
     progress.end_stage()
     return surface
 
 
-def _surface_points(scene: Scene, tracer, extent: float, settings: Settings, xs: np.ndarray, ys: np.ndarray,
+def surface_points(scene: Scene, tracer, extent: float, settings: Settings, xs: np.ndarray, ys: np.ndarray,
                     progress: Progress | None = None) -> SurfacePoints:
     """What camera rays through the centres of full-frame pixels (xs, ys) (N,) int64 see, in batches (a
     pixel's point does not depend on the batch it is traced in)."""

@@ -17,7 +17,7 @@ import numpy as np
 
 from .edge_tree import MeshEdges
 from .emitters import crowded_hulls, hull_faces_in_scene, hull_tables, hulls_as_triangles, nearby_geometry
-from .frame import _frame_camera, working_budget_mb
+from .frame import frame_camera, working_budget_mb
 from .geometry import light_frames
 from .progress import Progress
 from .scene import Scene
@@ -177,7 +177,7 @@ def prepare(scene: Scene, settings: Settings | None = None, progress: Progress |
     progress.begin_stage("Validating scene")
     warned = len(progress.warnings)
     validated = scene.validated(progress)
-    camera, _ = _frame_camera(validated.camera, settings)
+    camera, _ = frame_camera(validated.camera, settings)
     height, width = camera.window_shape
     working_budget_mb(settings.memory_budget_mb, height, width, len(validated.triangles))
     if validated.light_count == 0:

@@ -22,13 +22,13 @@ from dataclasses import replace
 
 import numpy as np
 
-from .frame import RenderOutput, _blocker_map_frame, _frame_camera, _global_pixels, _silhouette_frame, working_budget_mb
+from .frame import RenderOutput, blocker_map_frame, frame_camera, global_pixels, silhouette_frame, working_budget_mb
 from .prepared import PreparedScene, prepare
 from .progress import Progress
 from .scene import Camera, Scene
 from .seen_lights import OUTLINE_SAMPLES, draw_seen_lights
 from .settings import Settings
-from .supersampling import _antialias
+from .supersampling import antialias_frame
 
 
 def render(scene: Scene, settings: Settings | None = None, progress: Progress | None = None,
@@ -66,7 +66,7 @@ def _render_prepared(prepared: PreparedScene, camera: Camera, settings: Settings
     """``render`` of ``prepared``'s scene through ``camera``: everything that depends on the camera (the
     window and its margin, the memory budget of the frame, camera rays, pass 2, anti-aliasing, the lights
     the camera sees). ``fresh``: ``prepared`` was built by this render (its stats count the kernels)."""
-    camera, wanted_window = _frame_camera(camera, settings)
+    camera, wanted_window = frame_camera(camera, settings)
     scene = replace(prepared.scene, camera=camera)
     height, width = camera.window_shape
     n_pixels = height * width
@@ -84,15 +84,15 @@ def _render_prepared(prepared: PreparedScene, camera: Camera, settings: Settings
     # The tracer may have served earlier renders (and serve another render at the same time: a cancelled
     # viewport step still stopping); its counter is the whole tracer's.
     rays_before = tracer.n_rays_cast
-    pixel_global = _global_pixels(camera)
+    pixel_global = global_pixels(camera)
     if settings.uses_silhouettes:
-        frame = _silhouette_frame(scene, tracer, extent, frames, settings, progress, stats, pixel_global, edges)
+        frame = silhouette_frame(scene, tracer, extent, frames, settings, progress, stats, pixel_global, edges)
     else:
-        frame = _blocker_map_frame(scene, tracer, extent, frames, settings, progress, stats, pixel_global)
+        frame = blocker_map_frame(scene, tracer, extent, frames, settings, progress, stats, pixel_global)
 
     resolved = None
     if settings.aa_samples > 1 and (frame.grid.index_triangle >= 0).any():
-        resolved = _antialias(scene, tracer, extent, frames, settings, progress, stats, pixel_global, frame,
+        resolved = antialias_frame(scene, tracer, extent, frames, settings, progress, stats, pixel_global, frame,
                               wanted_window)
     output = frame.output
     if resolved is not None:
@@ -102,7 +102,7 @@ def _render_prepared(prepared: PreparedScene, camera: Camera, settings: Settings
     if camera.window != wanted_window:
         output = _cropped(output, camera.window, wanted_window)
         scene = replace(scene, camera=replace(camera, window=wanted_window))
-        camera, pixel_global = scene.camera, _global_pixels(scene.camera)
+        camera, pixel_global = scene.camera, global_pixels(scene.camera)
         stats["pixels"] = len(pixel_global)
     if len(scene.seen):
         # Lights the camera sees add their radiance over whatever lies behind them (Cycles: a light is no

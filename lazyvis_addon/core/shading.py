@@ -1,9 +1,9 @@
 """Pass 2 for a batch of surface points: the light each point reflects, with exact visibility.
 
-``_illuminate`` splits the points into batches on the thread pool and, per batch, finds the visible part of
+``illuminate`` splits the points into batches on the thread pool and, per batch, finds the visible part of
 every light: by silhouettes (``_shade_silhouettes``: the edge tree's candidate edges, arcs, regions and the
 reference depth, ``silhouettes``) or from a blocker map's lists (``illumination.visible_pieces``), then
-integrates the BSDF over those pieces in closed form (``illumination``). ``_shade_verified`` re-shades points
+integrates the BSDF over those pieces in closed form (``illumination``). ``shade_verified`` re-shades points
 whose inherited lists may not hold (anti-aliasing samples that see another surface than their pixel's
 centre) after testing them with shadow rays. The warnings about lights too close to their receivers are
 gathered here, once per render.
@@ -43,7 +43,7 @@ MIN_SHARED_BATCH = 1024
 BATCHES_PER_THREAD = 8
 
 
-def _illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: BlockerMap | None, settings: Settings,
+def illuminate(surface: SurfacePoints, frames, polygons, tracer, blockers: BlockerMap | None, settings: Settings,
                 pixel_global: np.ndarray, progress: Progress, materials, verify: bool = False,
                 edges: MeshEdges | None = None, stage: tuple[int, int] | None = None
                 ) -> tuple[np.ndarray, dict, tuple[np.ndarray, np.ndarray, np.ndarray]]:
@@ -203,7 +203,7 @@ SAMPLE_VERIFY_RAYS = 4
 SAMPLE_VERIFY_ROUNDS = 3
 
 
-def _shade_verified(surface: SurfacePoints, frames, polygons, tracer, blockers: BlockerMap, settings: Settings,
+def shade_verified(surface: SurfacePoints, frames, polygons, tracer, blockers: BlockerMap, settings: Settings,
                     pixel_global: np.ndarray, progress: Progress, materials, check: np.ndarray, counts: np.ndarray
                     ) -> tuple[np.ndarray, int]:
     """Pass 2 over anti-aliasing samples, which have no pixel grid to flood-fill over: verification rays
@@ -217,13 +217,13 @@ def _shade_verified(surface: SurfacePoints, frames, polygons, tracer, blockers: 
     radiance = np.zeros((n_points, 3))
     plain = np.flatnonzero(~check)
     if len(plain):
-        radiance[plain] = _illuminate(surface.take(plain), frames, polygons, tracer, blockers.crop(plain, n_points),
+        radiance[plain] = illuminate(surface.take(plain), frames, polygons, tracer, blockers.crop(plain, n_points),
                                       settings, pixel_global[plain], progress, materials)[0]
     chosen = np.flatnonzero(check)
     if len(chosen) == 0 or len(frames) == 0:
         return radiance, 0
     sample_settings = settings.replace(verify_rays=SAMPLE_VERIFY_RAYS)
-    radiance[chosen], stats, missed = _illuminate(surface.take(chosen), frames, polygons, tracer,
+    radiance[chosen], stats, missed = illuminate(surface.take(chosen), frames, polygons, tracer,
                                                   blockers.crop(chosen, n_points), sample_settings,
                                                   pixel_global[chosen], progress, materials, True)
     missed = (chosen[missed[0]], missed[1], missed[2])
@@ -241,7 +241,7 @@ def _shade_verified(surface: SurfacePoints, frames, polygons, tracer, blockers: 
                                            np.concatenate([blockers.blocker, np.repeat(missed[1], size)]),
                                            blockers.umbra)
         changed = np.unique(members)
-        part, stats, missed = _illuminate(surface.take(changed), frames, polygons, tracer,
+        part, stats, missed = illuminate(surface.take(changed), frames, polygons, tracer,
                                           blockers.crop(changed, n_points), sample_settings,
                                           pixel_global[changed], progress, materials, True)
         radiance[changed] = part
@@ -250,7 +250,7 @@ def _shade_verified(surface: SurfacePoints, frames, polygons, tracer, blockers: 
     return radiance, rays
 
 
-def _clamped_caps(surface: SurfacePoints, frames) -> set[int]:
+def clamped_caps(surface: SurfacePoints, frames) -> set[int]:
     """The point and spot lights (scene indices) that some visible point lies too close to (``facing``'s
     MAX_HALF_ANGLE: it sees less of the lamp than Cycles there)."""
     points = surface.position[surface.hit]
@@ -258,14 +258,14 @@ def _clamped_caps(surface: SurfacePoints, frames) -> set[int]:
     return {int(frames.source[light]) for light in lamps if too_close(frames, light, points).any()}  # a handful
 
 
-def _warn_clamped_caps(close: set[int], progress: Progress) -> None:
-    """One warning naming the lamps of ``_clamped_caps``."""
+def warn_clamped_caps(close: set[int], progress: Progress) -> None:
+    """One warning naming the lamps of ``clamped_caps``."""
     if close:
         progress.warn("surfaces closer to a point or spot light than 1.7 times its radius get less of its light "
                       f"than in Cycles (point/spot/sun light {', '.join(str(i) for i in sorted(close))})")
 
 
-def _near_hull_misses(surface: SurfacePoints, frames) -> dict[int, int]:
+def near_hull_misses(surface: SurfacePoints, frames) -> dict[int, int]:
     """Mesh emitter (hull) -> visible points that get none of its light (``emitters.near_receivers``: an
     outline with more vertices than budgeted, or a point inside the box of a hull's planes whose inner
     lights fail)."""
@@ -273,8 +273,8 @@ def _near_hull_misses(surface: SurfacePoints, frames) -> dict[int, int]:
     return near_receivers(frames, surface.position[hit], surface.index_triangle[hit], frames.part_of)
 
 
-def _warn_near_hulls(missed: dict[int, int], progress: Progress) -> None:
-    """One warning naming the emitters of ``_near_hull_misses`` and their pixels."""
+def warn_near_hulls(missed: dict[int, int], progress: Progress) -> None:
+    """One warning naming the emitters of ``near_hull_misses`` and their pixels."""
     if missed:
         progress.warn("surfaces next to a mesh emitter (seeing more of its outline than budgeted) get none of its "
                       "light "

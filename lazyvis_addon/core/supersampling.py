@@ -1,7 +1,7 @@
 """Anti-aliasing, run: which edge pixels get samples, how many, shaded in bands on the threads, and pooled.
 
 The estimators themselves (allocation, coverage, the balance-heuristic pool, settling) are in
-``antialias``; this module drives them over a ``frame.ShadedFrame``: ``_antialias`` marks the edge pixels
+``antialias``; this module drives them over a ``frame.ShadedFrame``: ``antialias_frame`` marks the edge pixels
 (``_marked_pixels``), sets the frame's scale (``_frame_scale``: the same for a window as for the whole
 frame), splits the work into bands of rows, and per band shades a pilot of samples, the rest where the
 pilot has not settled (``_shade_until_settled``; each sample's pass 2 through ``shading``), and pools them
@@ -23,18 +23,18 @@ from .antialias import (PILOT_SAMPLES, Coverage, FrameScale, SurfaceStrata, cent
 from .blocker_map import reference_blocker_map
 from .camera import pixel_coordinates
 from .edge_tree import MeshEdges
-from .frame import (AA_SAMPLES_PER_MB, MARK_RING, CentreGrid, ShadedFrame, _global_pixels, _silhouette_frame,
-                    _surface_points)
+from .frame import (AA_SAMPLES_PER_MB, MARK_RING, CentreGrid, ShadedFrame, global_pixels, silhouette_frame,
+                    surface_points)
 from .parallel import map_batches, thread_count
 from .progress import Progress
 from .scene import Scene
 from .settings import Settings
-from .shading import _illuminate, _shade_verified
+from .shading import illuminate, shade_verified
 from .silhouettes import compile_kernels
 from .surface import SurfacePoints, albedo_scaled_materials, has_albedo_scaled
 
 
-def _antialias(scene: Scene, tracer, extent: float, frames, settings: Settings, progress: Progress, stats: dict,
+def antialias_frame(scene: Scene, tracer, extent: float, frames, settings: Settings, progress: Progress, stats: dict,
                pixel_global: np.ndarray, frame: ShadedFrame, wanted_window=None):
     """Supersample the edge pixels of ``frame``: (pixels (P,) int64, filtered RGBA (P, 4), samples (P,)), or
     None where no pixel needs it.
@@ -227,8 +227,8 @@ def _frame_scale(scene: Scene, tracer, extent: float, frames, settings: Settings
             whole = frame
         else:  # a window of a small frame: the rest of the frame's centres, once
             whole_scene = replace(scene, camera=replace(camera, window=full))
-            whole = _silhouette_frame(whole_scene, tracer, extent, frames, settings.replace(integrator="analytic"),
-                                      progress, {}, _global_pixels(whole_scene.camera), edges=silhouette_edges())
+            whole = silhouette_frame(whole_scene, tracer, extent, frames, settings.replace(integrator="analytic"),
+                                      progress, {}, global_pixels(whole_scene.camera), edges=silhouette_edges())
             scene = whole_scene
         floor = 1e-4 * max(_brightest(whole), 1e-30)
         pixels, contrast = _marked_pixels(scene, tracer, settings, whole, floor)
@@ -246,8 +246,8 @@ def _frame_scale(scene: Scene, tracer, extent: float, frames, settings: Settings
         frame.radiance[local] + frame.grid.emission[local]
     outside = np.flatnonzero(~inside)
     if len(outside):
-        surface = _surface_points(scene, tracer, extent, settings, xs[outside], ys[outside])
-        radiance, _, _ = _illuminate(surface, frames, None, tracer, None, settings.replace(integrator="analytic"),
+        surface = surface_points(scene, tracer, extent, settings, xs[outside], ys[outside])
+        radiance, _, _ = illuminate(surface, frames, None, tracer, None, settings.replace(integrator="analytic"),
                                      ys[outside] * camera.width + xs[outside], progress, scene.materials, False,
                                      silhouette_edges())
         index_triangle[outside] = surface.index_triangle
@@ -331,13 +331,13 @@ def _shade_sample_batch(pixels: np.ndarray, counts: np.ndarray, scene: Scene, tr
         # hides at the centre; with verification asked for, every sample is verified.
         check = sub.hit if verify else foreign_samples(sub, landing, outer_surface, outer)
         stats["aa_verified_samples"] = stats.get("aa_verified_samples", 0) + int(check.sum())
-        sub_radiance, rays = _shade_verified(sub, frames, polygons, tracer, sub_map, settings, sub_global,
+        sub_radiance, rays = shade_verified(sub, frames, polygons, tracer, sub_map, settings, sub_global,
                                              progress, scene.materials, check, counts)
         stats["verify_rays"] += rays
     else:
         sub_map = None if settings.integrator == "standard_mc" or edges is not None else \
             reference_blocker_map(sub, frames, polygons, (len(sub), 1), settings, progress)
-        sub_radiance, _, _ = _illuminate(sub, frames, polygons, tracer, sub_map, settings, sub_global,
+        sub_radiance, _, _ = illuminate(sub, frames, polygons, tracer, sub_map, settings, sub_global,
                                          progress, scene.materials, edges=edges)
     return sample_rgba(sub_radiance, sub, scene, settings), position, sub.index_triangle, \
         _texture_part(scene, sub, sub_radiance)
