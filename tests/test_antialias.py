@@ -484,6 +484,12 @@ def test_strata_are_the_smooth_pieces_of_each_surface():
     assert strata_of(quad).count == 1
     painted = strata_of(quad, material=[0, 1])
     assert painted.count == 2 and len(np.unique(painted.parent)) == 2
+    # Shading normals of any length: (0, 0, 2097.152) and (0, 0.001, 0) rounded as they are would pack to
+    # the same code; as unit normals they are a crease.
+    crease = np.concatenate([quad_triangles([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)]),
+                             quad_triangles([(0, 1, 0), (1, 1, 0), (1, 1, 1), (0, 1, 1)])])
+    lengths = np.concatenate([np.tile([0.0, 0.0, 2097.152], (2, 3, 1)), np.tile([0.0, 0.001, 0.0], (2, 3, 1))])
+    assert strata_of(crease, shading_normals=lengths).count == 2
     # Two separate boxes: two surfaces, six faces each; nothing seen is -1.
     two = strata_of(np.concatenate([box_triangles((0, 0, 0), (1, 1, 1)), box_triangles((3, 0, 0), (1, 1, 1))]))
     assert two.count == 12 and len(np.unique(two.parent)) == 2

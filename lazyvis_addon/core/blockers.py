@@ -349,7 +349,7 @@ def triangle_components(triangles: np.ndarray, corner_normals: np.ndarray | None
     """Connected surfaces of a triangle soup: (T,) int64 label of each triangle (T, 3, 3), equal for
     triangles joined through shared vertex positions.
 
-    ``corner_normals`` (T, 3, 3) float64 unit normals at the corners: corners then join only where their
+    ``corner_normals`` (T, 3, 3) float64 normals at the corners (any length): corners then join only where their
     normals agree too (to NORMAL_QUANTUM, rounded), so the labels are the smooth pieces of each surface,
     split at its creases (flat faces at an angle, a smooth mesh's sharp edges)."""
     n = len(triangles)
@@ -362,8 +362,11 @@ def triangle_components(triangles: np.ndarray, corner_normals: np.ndarray | None
     if corner_normals is not None:
         # Then the first corner at the same position with the same rounded normal (21 bits a component:
         # |n / quantum| <= 1000 fits).
-        code = np.round(np.asarray(corner_normals, np.float64).reshape(-1, 3) / NORMAL_QUANTUM).astype(np.int64) \
-            + (1 << 20)
+        normal = np.asarray(corner_normals, np.float64).reshape(-1, 3)
+        # Unit length first (a scene's shading normals are finite, not necessarily unit): a longer one
+        # would overflow its 21 bits into the next component's and join normals that differ.
+        normal = normal / np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+        code = np.round(normal / NORMAL_QUANTUM).astype(np.int64) + (1 << 20)
         normal_code = (code[:, 0] << 42) | (code[:, 1] << 21) | code[:, 2]
         vertex_id = _first_equal_rows(np.stack([vertex_id, normal_code, np.zeros_like(vertex_id)], axis=1))
     vertex_id = vertex_id.reshape(n, 3)
