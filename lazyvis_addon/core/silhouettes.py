@@ -55,6 +55,7 @@ from .ggx import compile_ggx
 from .illumination import compile_illumination
 from .regions import compile_regions, couple_regions
 from .rng import compile_rng
+from .antialias import compile_antialias
 from .terminator import compile_terminator
 
 # Receivers per detection query (neighbours in a Morton order of their positions), and per sub-group:
@@ -319,7 +320,7 @@ def compile_kernels() -> bool:
                arrangement_module._jumps, _cone_planes, _sort_by_couple, _gather_depth_rays, _step_depth_rays,
                _bounding_cones, _reference_points, _hull_rows, *compile_edge_tree(), *compile_rng(),
                *compile_illumination(), *compile_ggx(), _fan_triangles_kernel, *compile_geometry(),
-               *compile_terminator(), *compile_facing(), *compile_emitters())
+               *compile_terminator(), *compile_facing(), *compile_emitters(), *compile_antialias())
     return any(kernel.stats.cache_misses for kernel in kernels)
 
 

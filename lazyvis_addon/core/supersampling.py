@@ -392,12 +392,15 @@ def _shade_until_settled(pixels: np.ndarray, drawn: np.ndarray, contrast: np.nda
     pilot_coverage = None
     if settings.aa_coverage_rays > 0:
         pilot_coverage = pixel_coverage(scene, tracer, pixels, pilot, pilot_stratum, strata, settings, pixel_global,
-                                        sample_albedo=_albedo_of(texture))
+                                        sample_albedo=_albedo_of(texture), sample_position=position)
         one_surface = covers_one_surface(pilot_coverage, centre_stratum)
         if spread is not None:
+            x0, y0 = scene.camera.window[:2]
+            row, column = np.divmod(pixels, spread.shape[1])
+            pilot_offset = position - np.repeat(np.stack([x0 + column, y0 + row], axis=1) + 0.5, pilot, axis=0)
             within = surface_spread(pixels, spread.shape, settings.filter_reach, pilot_coverage, rgba, pilot_stratum,
                                     pilot, spread.centre_rgba, spread.centre_stratum, contrast, texture,
-                                    spread.centre_texture)
+                                    spread.centre_texture, pilot_offset)
             drawn = np.maximum(np.minimum(drawn, spread.samples(within)), pilot)
             rest = drawn - pilot
     else:
@@ -462,11 +465,11 @@ def _pool_with_coverage(scene: Scene, tracer, centres: Callable, radiance: np.nd
     sample_stratum = stratum_of(triangle, strata)
     if known is None:
         coverage = pixel_coverage(scene, tracer, pixels, drawn, sample_stratum, strata, settings, pixel_global,
-                                  sample_albedo=sample_albedo)
+                                  sample_albedo=sample_albedo, sample_position=position)
         stats["aa_coverage_rays"] = stats.get("aa_coverage_rays", 0) + coverage.rays
     else:
         coverage = _with_known_coverage(scene, tracer, pixels, drawn, sample_stratum, strata, settings, pixel_global,
-                                        stats, *known, sample_albedo=sample_albedo)
+                                        stats, *known, sample_albedo=sample_albedo, sample_position=position)
     lattice = lattice_pixels(pixels, camera.window_shape, settings.filter_reach)
     lattice_points = centres(lattice)
     lattice_position = np.stack(pixel_coordinates(camera, lattice), axis=1) + 0.5
@@ -484,17 +487,20 @@ def _pool_with_coverage(scene: Scene, tracer, centres: Callable, radiance: np.nd
 def _with_known_coverage(scene: Scene, tracer, pixels: np.ndarray, drawn: np.ndarray, sample_stratum: np.ndarray,
                          strata: SurfaceStrata, settings: Settings, pixel_global: np.ndarray, stats: dict,
                          known: Coverage, reuse: np.ndarray, rays: np.ndarray,
-                         sample_albedo: np.ndarray | None = None) -> Coverage:
+                         sample_albedo: np.ndarray | None = None, sample_position: np.ndarray | None = None
+                         ) -> Coverage:
     """``pixel_coverage`` of ``pixels`` with ``drawn`` samples, where the pixels ``reuse`` (P,) bool have it in
     ``known`` already (the same rays: a pixel's coverage depends only on its samples drawn): the others' is
     traced and the two merged in key order. Counts every ray traced, the known ones included."""
     redo = np.flatnonzero(~reuse)
     none = np.zeros(0, np.int64)
-    fresh = pixel_coverage(scene, tracer, pixels[redo], drawn[redo], sample_stratum[np.repeat(~reuse, drawn)], strata,
+    redone = np.repeat(~reuse, drawn)
+    fresh = pixel_coverage(scene, tracer, pixels[redo], drawn[redo], sample_stratum[redone], strata,
                            settings, pixel_global, rays[redo],
-                           None if sample_albedo is None else sample_albedo[np.repeat(~reuse, drawn)]) if len(redo) \
+                           None if sample_albedo is None else sample_albedo[redone],
+                           None if sample_position is None else sample_position[redone]) if len(redo) \
         else Coverage(none, none, np.zeros(0), known.stride, 0, None if known.albedo is None else np.zeros((0, 3)),
-                      known.parent)
+                      known.parent, np.zeros((0, 2)))
     stats["aa_coverage_rays"] = stats.get("aa_coverage_rays", 0) + known.rays + fresh.rays
     kept = reuse[known.pixel]
     pixel = np.concatenate([known.pixel[kept], redo[fresh.pixel]])
@@ -502,5 +508,7 @@ def _with_known_coverage(scene: Scene, tracer, pixels: np.ndarray, drawn: np.nda
     fraction = np.concatenate([known.fraction[kept], fresh.fraction])
     order = np.argsort(pixel * known.stride + stratum + 1, kind="stable")
     albedo = None if known.albedo is None else np.concatenate([known.albedo[kept], fresh.albedo])[order]
+    centroid = None if known.centroid is None or fresh.centroid is None else \
+        np.concatenate([known.centroid[kept], fresh.centroid])[order]
     return Coverage(pixel[order], stratum[order], fraction[order], known.stride, known.rays + fresh.rays, albedo,
-                    known.parent)
+                    known.parent, centroid)
