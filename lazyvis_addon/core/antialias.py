@@ -673,81 +673,30 @@ def _span_at(key: np.ndarray, rgba: np.ndarray, wanted: np.ndarray, unknown: np.
     known = key[first]
     points = np.diff(np.append(first, len(key)))
     if offset is not None and len(key):
+        # The plane of each key's points, fitted as pool_samples fits it (unit weights here), and their
+        # departures from it.
+        offset = np.ascontiguousarray(offset[order], np.float64)
+        group = np.repeat(np.arange(len(first)), points)
+        moments = np.zeros((len(first), 14))
+        _add_moments(group, np.ones(len(key)), offset, np.ascontiguousarray(rgba, np.float64), moments)
+        slope_x, slope_y, x_mean, _ = plane_slopes(moments[:, 0], np.add.reduceat(rgba, first, axis=0)
+                                                   / points[:, None], moments)
         span = np.empty(len(first))
-        _plane_spans(np.append(first, len(key)).astype(np.int64), np.ascontiguousarray(offset[order], np.float64),
-                     np.ascontiguousarray(rgba, np.float64), PLANE_POINTS, span)
+        _residual_spans(np.append(first, len(key)), offset, np.ascontiguousarray(rgba, np.float64), slope_x, slope_y,
+                        x_mean, span)
     else:
-        span = (np.maximum.reduceat(rgba, first, axis=0) - np.minimum.reduceat(rgba, first, axis=0)).max(axis=1) \
-            if len(key) else np.zeros(0)
+        span = (np.maximum.reduceat(rgba, first, axis=0) - np.minimum.reduceat(rgba, first, axis=0)).max(axis=1)
     slot = np.minimum(np.searchsorted(known, wanted), len(known) - 1)
     measured = (known[slot] == wanted) & (points[slot] >= 2)
     return np.where(measured, span[slot], unknown)
 
 
 @njit(cache=True, nogil=True)
-def _plane_spans(bounds, offset, rgba, min_points, out):
-    """Per group of points ``bounds[g] .. bounds[g + 1] - 1`` (offsets (N, 2), RGBA (N, 4), grouped): the
-    largest channel's span of the departures from the least-squares plane in the offsets, as
-    ``plane_slopes`` fits it with unit weights (no plane, the plain span, where it fits none). Compiled: in
-    numpy the (N, 18) moments and the residuals took 0.105 s a call on chairs.blend at 256 px (267 k points),
-    0.012 s here."""
-    bounds, offset, rgba, out = borrowed(bounds), borrowed(offset), borrowed(rgba), borrowed(out)
-    mean = np.empty(4)
-    cx = np.empty(4)
-    cy = np.empty(4)
-    low = np.empty(4)
-    high = np.empty(4)
-    for g in range(len(bounds) - 1):
-        lo, hi = bounds[g], bounds[g + 1]
-        n = hi - lo
-        sx, sy = 0.0, 0.0
-        for c in range(4):
-            mean[c], cx[c], cy[c] = 0.0, 0.0, 0.0
-        for i in range(lo, hi):
-            sx += offset[i, 0]
-            sy += offset[i, 1]
-            for c in range(4):
-                mean[c] += rgba[i, c]
-        x_mean, y_mean = sx / n, sy / n
-        for c in range(4):
-            mean[c] /= n
-        cxx, cxy, cyy = 0.0, 0.0, 0.0
-        for i in range(lo, hi):  # centred sums: no cancellation between large moments
-            dx, dy = offset[i, 0] - x_mean, offset[i, 1] - y_mean
-            cxx += dx * dx
-            cxy += dx * dy
-            cyy += dy * dy
-            for c in range(4):
-                cx[c] += dx * (rgba[i, c] - mean[c])
-                cy[c] += dy * (rgba[i, c] - mean[c])
-        cxx, cxy, cyy = cxx / n, cxy / n, cyy / n
-        determinant = cxx * cyy - cxy * cxy
-        fitted = n >= min_points and determinant > 1e-3 * (0.5 * (cxx + cyy)) ** 2 and cxx + cyy > 1e-12
-        for c in range(4):
-            if fitted:
-                slope_x = (cyy * cx[c] / n - cxy * cy[c] / n) / determinant
-                slope_y = (cxx * cy[c] / n - cxy * cx[c] / n) / determinant
-            else:
-                slope_x, slope_y = 0.0, 0.0
-            cx[c], cy[c] = slope_x, slope_y
-            low[c], high[c] = np.inf, -np.inf
-        for i in range(lo, hi):
-            dx, dy = offset[i, 0] - x_mean, offset[i, 1] - y_mean
-            for c in range(4):
-                value = rgba[i, c] - cx[c] * dx - cy[c] * dy
-                low[c] = min(low[c], value)
-                high[c] = max(high[c], value)
-        widest = 0.0
-        for c in range(4):
-            widest = max(widest, high[c] - low[c])
-        out[g] = widest
-
-
-@njit(cache=True, nogil=True)
 def _add_moments(slot, weight, offset, rgba, moments):
-    """Adds each (sample, pixel) pair's terms to its entry's ``plane_correction`` moments (C, 14): the
-    point, the weighted offset (dx, dy), its products and its products with RGBA. Compiled: one pass over
-    the pairs instead of 14 weighted bincounts and their temporaries."""
+    """Adds each point's terms to its entry's ``plane_slopes`` moments (C, 14): the point, the weighted
+    offset (dx, dy), its products and its products with RGBA (``slot`` (N,) int64 entries, ``weight`` (N,),
+    ``offset`` (N, 2), ``rgba`` (N, 4) float64). Compiled: one pass over the points instead of 14 weighted
+    bincounts and their temporaries."""
     slot, weight, offset, rgba, moments = borrowed(slot), borrowed(weight), borrowed(offset), borrowed(rgba), \
         borrowed(moments)
     for i in range(len(slot)):
@@ -764,11 +713,32 @@ def _add_moments(slot, weight, offset, rgba, moments):
             moments[e, 10 + c] += w * dy * rgba[i, c]
 
 
+@njit(cache=True, nogil=True)
+def _residual_spans(bounds, offset, rgba, slope_x, slope_y, x_mean, out):
+    """Per group g of points ``bounds[g] .. bounds[g + 1] - 1`` (offsets (N, 2), RGBA (N, 4)) and its plane
+    (slopes (G, 4), mean offset (G, 2): ``plane_slopes``): the largest channel's span of the points'
+    departures from the plane, into ``out`` (G,). Compiled: as numpy gathers of (N, 4) it took twice
+    ``_span_at``'s other work."""
+    bounds, offset, rgba, out = borrowed(bounds), borrowed(offset), borrowed(rgba), borrowed(out)
+    slope_x, slope_y, x_mean = borrowed(slope_x), borrowed(slope_y), borrowed(x_mean)
+    for g in range(len(bounds) - 1):  # groups, each over its points
+        widest = 0.0
+        for c in range(4):
+            low, high = np.inf, -np.inf
+            for i in range(bounds[g], bounds[g + 1]):
+                value = rgba[i, c] - slope_x[g, c] * (offset[i, 0] - x_mean[g, 0]) \
+                    - slope_y[g, c] * (offset[i, 1] - x_mean[g, 1])
+                low, high = min(low, value), max(high, value)
+            widest = max(widest, high - low)
+        out[g] = widest
+
+
 def compile_antialias() -> tuple:
     """Compile anti-aliasing's kernels (or load them from Numba's cache); returns them."""
-    _plane_spans(np.array([0, 1], np.int64), np.zeros((1, 2)), np.zeros((1, 4)), PLANE_POINTS, np.empty(1))
     _add_moments(np.zeros(1, np.int64), np.ones(1), np.zeros((1, 2)), np.zeros((1, 4)), np.zeros((1, 14)))
-    return (_plane_spans, _add_moments)
+    _residual_spans(np.array([0, 1]), np.zeros((1, 2)), np.zeros((1, 4)), np.zeros((1, 4)), np.zeros((1, 4)),
+                    np.zeros((1, 2)), np.empty(1))
+    return (_add_moments, _residual_spans)
 
 
 def narrow_filter(settings: Settings) -> bool:

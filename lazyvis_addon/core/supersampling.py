@@ -395,9 +395,8 @@ def _shade_until_settled(pixels: np.ndarray, drawn: np.ndarray, contrast: np.nda
                                         sample_albedo=_albedo_of(texture), sample_position=position)
         one_surface = covers_one_surface(pilot_coverage, centre_stratum)
         if spread is not None:
-            x0, y0 = scene.camera.window[:2]
-            row, column = np.divmod(pixels, spread.shape[1])
-            pilot_offset = position - np.repeat(np.stack([x0 + column, y0 + row], axis=1) + 0.5, pilot, axis=0)
+            pilot_offset = position - np.repeat(np.stack(pixel_coordinates(scene.camera, pixels), axis=1) + 0.5,
+                                                pilot, axis=0)
             within = surface_spread(pixels, spread.shape, settings.filter_reach, pilot_coverage, rgba, pilot_stratum,
                                     pilot, spread.centre_rgba, spread.centre_stratum, contrast, texture,
                                     spread.centre_texture, pilot_offset)
