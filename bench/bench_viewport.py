@@ -5,16 +5,16 @@
 
 Per .blend, exported through bpy at the viewport size with the engine's settings (the defaults), the
 progressive renderer (``core.progressive``, what the Rendered viewport runs) from a start to each step's
-image: 1/8, 1/4, 1/2 and full resolution without anti-aliasing, then the final (the F12 render of the
-view); the median of ``--repeats`` runs after a small warm-up render (the kernels loaded), each on a new
+image: the start resolution (1/32 and 1/16 at 1280 x 720, ``progressive.step_divisors``), 1/8, 1/4, 1/2 and
+full resolution without anti-aliasing, then the final (the F12 render of the view); the median of ``--repeats`` runs after a small warm-up render (the kernels loaded), each on a new
 renderer (a scene it has not prepared: the viewport's first start, or a change of geometry). Then the
 first image of a restart on a renderer that has started on the scene before (its first image shown,
 then cancelled and stopped), the median of ``--repeats``: after the view turned by a degree ("view"), and
 after a new scene of equal triangles and brighter lights ("lights": a new export after a change of
 lights). Then, for each of ``--cancel-delays``, a render cancelled that many seconds into it: how long its
 thread took to stop (the viewport's "any change cancels the work in progress"), the worst of the delays
-printed. ``--no-sequence``: the first images only (the cold start's 1/8 and the restarts).
-Targets (printed): the first coarse image within about 0.2 s of a change.
+printed. ``--no-sequence``: the first images only (the cold start's and the restarts').
+Targets (printed): the first coarse image within about 0.2 s of a change, and the issue's 1/8 image too.
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ sys.path[:0] = [str(ROOT), str(ROOT / "bench")]
 
 from bench_geometry import load_blend  # noqa: E402
 
-from lazyvis_addon.core.progressive import ProgressiveRenderer, scaled_camera  # noqa: E402
+from lazyvis_addon.core.progressive import ProgressiveRenderer, scaled_camera, step_divisors  # noqa: E402
 from lazyvis_addon.core.render import render  # noqa: E402
 
 SAMPLE_BLENDS = sorted((ROOT / "sample_blends").glob("*.blend"))
@@ -125,10 +125,12 @@ def main() -> int:
     args = parser.parse_args()
     width, height = args.size
     sequence = not args.no_sequence
-    columns = "1/8 | 1/4 | 1/2 | full | final (anti-aliased)" if sequence else "1/8"
-    print(f"| sample | {columns} | 1/8 after: view | lights | cancel (worst of {args.cancel_delays} s in) |")
+    divisors = step_divisors(width, height)
+    steps = [f"1/{d}" if d > 1 else "full" for d in divisors] + ["final (anti-aliased)"]
+    columns = " | ".join(steps) if sequence else f"first (1/{divisors[0]})"
+    print(f"| sample | {columns} | first after: view | lights | cancel (worst of {args.cancel_delays} s in) |")
     print("|---|" + "---|" * (columns.count("|") + 4))
-    firsts, restarts = [], []
+    firsts, restarts, eighths = [], [], []
     for blend in args.blends:
         scene, settings = load_blend(blend, width, None, height=height)
         # Warm-up: a small render loads the compiled kernels (a viewport session has them from the start).
@@ -143,6 +145,8 @@ def main() -> int:
         cancels = [cancel_seconds(scene, settings, delay) for delay in args.cancel_delays]
         firsts.append(medians[0])
         restarts.append(max(view, lights))
+        if sequence:
+            eighths.append(medians[divisors.index(8)])
         cells = " | ".join(f"{t:.2f} s" for t in medians)
         print(f"| {blend.stem} | {cells} | {view:.2f} s | {lights:.2f} s | "
               f"{max(cancels) if cancels else float('nan'):.3f} s |", flush=True)
@@ -150,6 +154,10 @@ def main() -> int:
         verdict = "PASS" if max(times) <= FIRST_IMAGE_TARGET else "FAIL"
         print(f"first coarse image within {FIRST_IMAGE_TARGET} s of {what} on every sample: {verdict} "
               f"(slowest {max(times):.2f} s)")
+    if eighths:
+        verdict = "PASS" if max(eighths) <= FIRST_IMAGE_TARGET else "FAIL"
+        print(f"the 1/8 image within {FIRST_IMAGE_TARGET} s of a start on every sample: {verdict} "
+              f"(slowest {max(eighths):.2f} s)")
     return 0
 
 

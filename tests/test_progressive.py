@@ -17,7 +17,8 @@ from lazyvis_addon.core import Camera, Lights, Materials, Scene, SeenLights, Set
 from lazyvis_addon.core.camera import camera_rays
 from lazyvis_addon.core.demo_scenes import icosphere_triangles, look_at, quad_triangles
 from lazyvis_addon.core.emitters import group_mesh_emitters
-from lazyvis_addon.core.progressive import DIVISORS, ProgressiveRenderer, refinement_steps, scaled_camera
+from lazyvis_addon.core.progressive import (DIVISORS, START_RESOLUTION, ProgressiveRenderer, refinement_steps,
+                                              scaled_camera, step_divisors)
 from lazyvis_addon.core.prepared import prepare
 
 
@@ -50,6 +51,40 @@ def test_steps_go_coarse_to_fine_and_end_with_the_renders_own_settings():
     # Without anti-aliasing the full-resolution step is already the final image.
     plain = refinement_steps(Settings(aa_samples=1))
     assert [divisor for divisor, _, _ in plain] == [8, 4, 2, 1] and plain[-1][2]
+
+
+def test_a_large_view_starts_coarser_than_an_eighth_at_the_start_resolution():
+    """Steps coarser than 1/8, each half the last's divisor, until the first image's longer side is at most
+    START_RESOLUTION pixels: 1/32 of 1280 x 720 is 40 x 23, 1/16 would be 80 x 45."""
+    assert START_RESOLUTION == 64
+    assert step_divisors(1280, 720) == (32, 16, 8, 4, 2, 1)
+    assert step_divisors(720, 1280) == (32, 16, 8, 4, 2, 1)
+    assert step_divisors(512, 300) == (8, 4, 2, 1)  # 64 pixels at 1/8: no coarser step
+    assert step_divisors(513, 300) == (16, 8, 4, 2, 1)
+    assert step_divisors(3840, 2160) == (64, 32, 16, 8, 4, 2, 1)
+    assert step_divisors() == DIVISORS
+    steps = refinement_steps(Settings(aa_samples=4), 1280, 720)
+    assert [divisor for divisor, _, _ in steps] == [32, 16, 8, 4, 2, 1, 1]
+    assert [final for _, _, final in steps] == [False] * 6 + [True]
+
+
+def test_coarse_start_steps_equal_plain_renders_at_their_resolution(monkeypatch):
+    """With a start resolution of 2 pixels a 40 x 40 view starts at 1/32 (2 x 2 pixels), then 1/16 (3 x 3):
+    every step is the plain render at its resolution, the last the full render."""
+    monkeypatch.setattr(progressive, "START_RESOLUTION", 2)
+    scene = demo_scenes.floating_boxes(resolution=40)
+    settings = Settings(aa_samples=4)
+    images = []
+    renderer = ProgressiveRenderer(on_image=images.append)
+    renderer.start(scene, settings)
+    assert renderer.wait(600.0) and renderer.error is None
+    renderer.close()
+    assert [image.divisor for image in images] == [32, 16, 8, 4, 2, 1, 1]
+    assert [image.image.shape[:2] for image in images[:2]] == [(2, 2), (3, 3)]
+    for image, (divisor, step, final) in zip(images, refinement_steps(settings, 40, 40)):
+        plain = render(dataclasses.replace(scene, camera=scaled_camera(scene.camera, divisor)), step)
+        np.testing.assert_array_equal(image.image, plain.combined)
+    np.testing.assert_array_equal(images[-1].image, render(scene, settings).combined)
 
 
 def test_every_step_equals_a_plain_render_at_its_resolution_and_the_last_the_full_render():
@@ -225,10 +260,13 @@ def test_a_changed_scene_is_refused_and_prepared_again_keeping_only_what_is_equa
     """A prepared scene serves its own scene's arrays only (by reference): a new scene of other lights,
     triangles or materials, or of equal copies, is refused; prepared again from it (``reuse``), it keeps
     the tracer where the triangles are equal by value, the frames and edge tree where the lights are too,
-    and renders as a render without any."""
+    the edge tree alone where only the lights' power changed, and renders as a render without any."""
     scene = demo_scenes.floating_boxes(resolution=24)
     settings = Settings(aa_samples=1)
     lit = dataclasses.replace(scene, lights=dataclasses.replace(scene.lights, radiance=scene.lights.radiance * 2.0))
+    centre = scene.lights.vertices.mean(axis=1, keepdims=True)
+    grown = dataclasses.replace(scene, lights=dataclasses.replace(
+        scene.lights, vertices=centre + 1.5 * (scene.lights.vertices - centre)))
     moved = dataclasses.replace(scene, triangles=scene.triangles + np.array([0.0, 0.0, 0.05]))
     painted = dataclasses.replace(scene, materials=dataclasses.replace(
         scene.materials, albedo=scene.materials.albedo[:, ::-1].copy()))
@@ -236,17 +274,18 @@ def test_a_changed_scene_is_refused_and_prepared_again_keeping_only_what_is_equa
     plain = render(scene, settings).combined
     with prepare(scene, settings) as first:
         closes = _closes(first.tracer)
-        for changed in (lit, moved, painted, copied):
+        for changed in (lit, grown, moved, painted, copied):
             with pytest.raises(ValueError, match="prepared from another scene"):
                 render(changed, settings, prepared=first)
         with pytest.raises(ValueError, match="another integrator"):
             render(scene, Settings(aa_samples=1, integrator="reference"), prepared=first)
-        for changed, kept in ((lit, ("tracer",)), (moved, ()), (painted, ("tracer", "lights")),
-                              (copied, ("tracer", "lights"))):
+        for changed, kept in ((lit, ("tracer", "edge tree")), (grown, ("tracer",)), (moved, ()),
+                              (painted, ("tracer", "lights")), (copied, ("tracer", "lights"))):
             with prepare(changed, settings, reuse=first) as again:
                 assert again.reused == kept
                 assert (again.tracer is first.tracer) == ("tracer" in kept)
-                assert (again.edges is first.edges) == ("lights" in kept)
+                assert (again.edges is first.edges) == ("lights" in kept or "edge tree" in kept)
+                assert (again.frames is first.frames) == ("lights" in kept)
                 want = render(changed, settings).combined
                 np.testing.assert_array_equal(render(changed, settings, prepared=again).combined, want)
                 assert np.array_equal(want, plain) == (changed is copied)
@@ -272,8 +311,9 @@ def test_a_closed_prepared_scene_stays_whole_while_a_render_holds_it():
 
 
 def test_later_starts_keep_the_prepared_scene_until_the_scene_changes(monkeypatch):
-    """A moved view renders with the kept prepared scene; a new scene of other lights prepares again, keeping
-    the tracer, and closes the old one; every image is still a plain render's; ``close`` lets go of it."""
+    """A moved view renders with the kept prepared scene; a new scene of brighter lights prepares again,
+    keeping the tracer and the edge tree, and closes the old one; every image is still a plain render's;
+    ``close`` lets go of it."""
     prepared_scenes = []
 
     def counted(*args, **kwargs):
@@ -300,7 +340,8 @@ def test_later_starts_keep_the_prepared_scene_until_the_scene_changes(monkeypatc
     generation = renderer.start(lit, settings)
     assert renderer.wait(600.0) and renderer.error is None
     second = renderer.prepared
-    assert prepared_scenes == [first, second] and second.reused == ("tracer",) and second.tracer is first.tracer
+    assert prepared_scenes == [first, second] and second.reused == ("tracer", "edge tree")
+    assert second.tracer is first.tracer and second.edges is first.edges
     assert first.closed and not closes  # the tracer is the second's now
     steps = images[count:]
     assert [image.generation for image in steps] == [generation] * len(refinement_steps(settings))

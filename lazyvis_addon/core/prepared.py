@@ -77,7 +77,9 @@ class PreparedScene:
     kernels_compiled : bool      pass 2's kernels were compiled (not loaded from Numba's cache) here.
     warnings : list[str]         the warnings preparing gave (a render given it repeats them).
     reused : tuple[str, ...]     what ``prepare`` took from the scene it was given to reuse: "tracer" (the
-                                 same triangles), "lights" (and the same lights: frames and edge tree too).
+                                 same triangles), "lights" (and the same lights: frames and edge tree too),
+                                 or "edge tree" (lights of the same shapes, another power or colour: the
+                                 edge tree and the extent, the frames made again).
     """
 
     def __init__(self, source: Scene, scene: Scene, silhouettes: bool, shared: _SharedTracer, extent: float,
@@ -195,15 +197,26 @@ def prepare(scene: Scene, settings: Settings | None = None, progress: Progress |
     # Let go of the tracer however preparing ends (a cancel included): its threads would otherwise live
     # until the exception's frames are collected.
     try:
-        if same_triangles and reuse.silhouettes == silhouettes and _equal_data(
-                (validated.lights, validated.facing, validated.hulls), (reuse.scene.lights, reuse.scene.facing,
-                                                                         reuse.scene.hulls)):
+        same_shapes = same_triangles and reuse.silhouettes == silhouettes and \
+            _equal_data(_light_shapes(validated), _light_shapes(reuse.scene))
+        if same_shapes and _equal_data(_light_powers(validated), _light_powers(reuse.scene)):
             # The frames, the extent and the edge tree depend on the triangles and the lights only.
             extent, frames, edges = reuse.extent, reuse.frames, reuse.edges
             kernels_compiled, frame_warnings = False, list(reuse._frame_warnings)
             for message in frame_warnings:
                 progress.warn(message)
             reused += ("lights",)
+        elif same_shapes:
+            # A light's strength or colour changed (a slider dragged in the viewport): the frames carry the
+            # radiance, the rest only the lights' shapes (suzanne_dense3's edge tree took 0.14 s to build
+            # again, its frames a millisecond).
+            extent, edges = reuse.extent, reuse.edges
+            frames = light_frames(validated.lights, validated.facing, scene_centre(validated), extent, validated.hulls)
+            frames.part_of = reuse.frames.part_of
+            kernels_compiled, frame_warnings = False, list(reuse._frame_warnings)
+            for message in frame_warnings:
+                progress.warn(message)
+            reused += ("edge tree",)
         else:
             extent = scene_extent(validated)
             frames = light_frames(validated.lights, validated.facing, scene_centre(validated), extent, validated.hulls)
@@ -226,6 +239,23 @@ def prepare(scene: Scene, settings: Settings | None = None, progress: Progress |
         raise
     return PreparedScene(scene, validated, silhouettes, shared, extent, frames, edges, kernels_compiled,
                          progress.warnings[warned:], frame_warnings, reused)
+
+
+# The fields of a scene's lights that carry their power, not their shape (``_light_shapes``).
+_POWER_FIELDS = {"radiance", "intensity"}
+
+
+def _light_shapes(scene: Scene) -> tuple:
+    """The fields of ``scene``'s lights, facing lamps and emitter hulls but their power (``_POWER_FIELDS``):
+    what the extent, the edge tree and the frames' geometry depend on."""
+    return tuple(tuple(getattr(part, f.name) for f in fields(part) if f.name not in _POWER_FIELDS)
+                 for part in (scene.lights, scene.facing, scene.hulls))
+
+
+def _light_powers(scene: Scene) -> tuple:
+    """The power fields of ``scene``'s lights, facing lamps and emitter hulls (``_light_shapes``' rest)."""
+    return tuple(tuple(getattr(part, f.name) for f in fields(part) if f.name in _POWER_FIELDS)
+                 for part in (scene.lights, scene.facing, scene.hulls))
 
 
 def _same_data(a, b) -> bool:

@@ -166,9 +166,10 @@ def test_a_new_view_renders_again_and_the_same_view_does_not(scene):
 
 
 def test_a_new_export_after_a_change_of_lights_or_materials_keeps_the_ray_tracer(scene):
-    """The session's restarts after the scene is exported again: a light's change keeps the ray tracer
-    (equal triangles), a material's also the light frames and edge tree, a moved object builds them again;
-    each final image is a plain render of the new export, and stopping the session lets go of them."""
+    """The session's restarts after the scene is exported again: a light's strength keeps the ray tracer
+    (equal triangles) and the edge tree (lights of the same shapes), its size the ray tracer only, a
+    material's change also the light frames and edge tree, a moved object builds them again; each final
+    image is a plain render of the new export, and stopping the session lets go of them."""
     camera = lit_scene(scene)
     paint = node_material("Paint", "ShaderNodeBsdfDiffuse", Color=(0.8, 0.8, 0.8))
     assign(bpy.data.objects["Plane"], paint)
@@ -190,10 +191,13 @@ def test_a_new_export_after_a_change_of_lights_or_materials_keeps_the_ray_tracer
 
     light = next(obj for obj in scene.objects if obj.type == "LIGHT").data
     lit = exported_after(lambda: setattr(light, "energy", light.energy * 2.0))
-    assert lit.reused == ("tracer",) and lit.tracer is first.tracer and first.closed
+    assert lit.reused == ("tracer", "edge tree") and lit.tracer is first.tracer and first.closed
+    assert lit.edges is first.edges and lit.frames is not first.frames
+    grown = exported_after(lambda: setattr(light, "size", light.size * 1.5))
+    assert grown.reused == ("tracer",) and grown.tracer is first.tracer and grown.edges is not first.edges
     colour = paint.node_tree.nodes["Diffuse BSDF"].inputs["Color"]
     painted = exported_after(lambda: setattr(colour, "default_value", (0.2, 0.5, 0.8, 1.0)))
-    assert painted.reused == ("tracer", "lights") and painted.edges is lit.edges
+    assert painted.reused == ("tracer", "lights") and painted.edges is grown.edges
     cube = bpy.data.objects["Cube"]
     moved = exported_after(lambda: setattr(cube, "location", (0.4, 0.0, 1.0)))
     assert moved.reused == () and moved.tracer is not lit.tracer
