@@ -68,6 +68,17 @@ def test_a_large_view_starts_coarser_than_an_eighth_at_the_start_resolution():
     assert [final for _, _, final in steps] == [False] * 6 + [True]
 
 
+def test_the_pixel_size_is_the_finest_step():
+    """Blender's viewport Pixel Size p: the steps stop at divisor p, where the final (anti-aliased) render
+    is made; without anti-aliasing the plain step at p is the final one."""
+    steps = refinement_steps(Settings(aa_samples=4), 1280, 720, pixel_size=2)
+    assert [divisor for divisor, _, _ in steps] == [32, 16, 8, 4, 2, 2]
+    assert [final for _, _, final in steps] == [False] * 5 + [True] and steps[-1][1].aa_samples == 4
+    steps = refinement_steps(Settings(aa_samples=1), 1280, 720, pixel_size=8)
+    assert [(divisor, final) for divisor, _, final in steps] == [(32, False), (16, False), (8, True)]
+    assert [divisor for divisor, _, _ in refinement_steps(Settings(aa_samples=4), 40, 40, pixel_size=4)] == [8, 4, 4]
+
+
 def test_coarse_start_steps_equal_plain_renders_at_their_resolution(monkeypatch):
     """With a start resolution of 2 pixels a 40 x 40 view starts at 1/32 (2 x 2 pixels), then 1/16 (3 x 3):
     every step is the plain render at its resolution, the last the full render."""

@@ -87,6 +87,7 @@ class ViewportSession:
         self.scene = None
         self.camera: Camera | None = None
         self.settings: Settings | None = None
+        self.pixel_size = 1  # Blender's viewport Pixel Size (``viewport_pixel_size``)
         self.export_error: str | None = None
         self.texture = None  # (image key, GPUTexture) last drawn (``draw_image``)
 
@@ -100,19 +101,22 @@ class ViewportSession:
         self.renderer.cancel(wait=False)
         self.scene, self.export_error = None, message
 
-    def view(self, camera: Camera, settings: Settings | None = None) -> None:
-        """The view at a draw: render again where the camera or the settings changed."""
-        changed = not same_camera(camera, self.camera) or (settings is not None and settings != self.settings)
+    def view(self, camera: Camera, settings: Settings | None = None, pixel_size: int | None = None) -> None:
+        """The view at a draw: render again where the camera, the settings or the pixel size changed."""
+        changed = not same_camera(camera, self.camera) or (settings is not None and settings != self.settings) or \
+            (pixel_size is not None and pixel_size != self.pixel_size)
         self.camera = camera
         if settings is not None:
             self.settings = settings
+        if pixel_size is not None:
+            self.pixel_size = pixel_size
         if changed:
             self._restart()
 
     def _restart(self) -> None:
         if self.scene is None or self.camera is None or self.settings is None:
             return
-        self.renderer.start(replace(self.scene, camera=self.camera), self.settings)
+        self.renderer.start(replace(self.scene, camera=self.camera), self.settings, self.pixel_size)
 
     @property
     def latest(self) -> ViewportImage | None:
@@ -206,6 +210,16 @@ def camera_frame(view, scene, width: int, height: int) -> tuple[float, float, fl
     return float(xs.min()), float(xs.max()), float(ys.min()), float(ys.max())
 
 
+def viewport_pixel_size(context, scene) -> int:
+    """Blender's Render Properties > Performance > Viewport > Pixel Size (``render.preview_pixel_size``):
+    the final viewport image's pixels are that many screen pixels wide; Automatic follows the interface's
+    pixel size (2 on a high-DPI display), as Cycles does."""
+    chosen = scene.render.preview_pixel_size
+    if chosen == 'AUTO':
+        return max(1, int(round(context.preferences.system.pixel_size)))
+    return max(1, int(chosen))
+
+
 def _region_camera(context, scene=None) -> Camera:
     region, view = context.region, context.region_data
     camera = viewport_camera(view.view_matrix, view.window_matrix, region.width, region.height)
@@ -230,6 +244,7 @@ def view_update(engine, context, depsgraph) -> None:
         camera = _region_camera(context, scene)
         exported = export_depsgraph(depsgraph, camera=camera, disk_vertices=scene.lazyvis.disk_vertices)
         session.camera = camera
+        session.pixel_size = viewport_pixel_size(context, scene)
         session.exported(exported.scene, settings_from_scene(scene))
     except (ValueError, MemoryError) as error:
         session.failed(str(error))
@@ -250,7 +265,7 @@ def view_draw(engine, context, depsgraph) -> None:
     except ValueError as error:
         engine.update_stats("", f"LazyVis: {error}")
         return
-    session.view(camera, settings_from_scene(depsgraph.scene))
+    session.view(camera, settings_from_scene(depsgraph.scene), viewport_pixel_size(context, depsgraph.scene))
     image = session.latest
     if image is not None:
         draw_image(engine, depsgraph, image, context.region.height, session)

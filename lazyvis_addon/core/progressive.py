@@ -53,7 +53,8 @@ class ViewportImage:
     window : (x0, y0, x1, y1)     the image's pixels in the step's frame (``scaled_camera``'s window: the
                                   whole frame, or the coarse pixels over a border); viewport pixels
                                   ``divisor`` times these.
-    final : bool                  the last step: the render at the given settings (anti-aliased).
+    final : bool                  the last step: the render at the given settings (anti-aliased), at the
+                                  viewport's resolution over its pixel size.
     generation : int              the ``start`` it belongs to (1, 2, ...).
     seconds : float               from that ``start`` to this image.
     """
@@ -96,16 +97,20 @@ def step_divisors(width: int = 0, height: int = 0) -> tuple[int, ...]:
     return tuple(coarse) + DIVISORS
 
 
-def refinement_steps(settings: Settings, width: int = 0, height: int = 0) -> list[tuple[int, Settings, bool]]:
+def refinement_steps(settings: Settings, width: int = 0, height: int = 0, pixel_size: int = 1
+                     ) -> list[tuple[int, Settings, bool]]:
     """(divisor, settings, final) of each step of a ``width`` x ``height`` view: ``step_divisors`` without
-    anti-aliasing, then the full resolution at ``settings`` (with their anti-aliasing; a render without it
-    ends at the plain full step)."""
+    anti-aliasing down to ``pixel_size`` (Blender's viewport Pixel Size: the finest step has pixels that
+    many viewport pixels wide), then that resolution at ``settings`` (with their anti-aliasing; a render
+    without it ends at the plain finest step)."""
+    pixel_size = max(int(pixel_size), 1)
     plain = settings.replace(aa_samples=1)
-    steps = [(divisor, plain, False) for divisor in step_divisors(width, height)]
+    divisors = [divisor for divisor in step_divisors(width, height) if divisor > pixel_size] + [pixel_size]
+    steps = [(divisor, plain, False) for divisor in divisors]
     if settings.aa_samples > 1:
-        steps.append((1, settings, True))
+        steps.append((pixel_size, settings, True))
     else:
-        steps[-1] = (1, settings, True)
+        steps[-1] = (pixel_size, settings, True)
     return steps
 
 
@@ -145,9 +150,10 @@ class ProgressiveRenderer:
         self._prepared: PreparedScene | None = None
 
     # -- the front end's side ------------------------------------------------------------------------------
-    def start(self, scene: Scene, settings: Settings) -> int:
-        """Cancel the render in progress and begin this one at its coarsest step; returns its generation.
-        The previous images stay ``latest`` until the first new one replaces them."""
+    def start(self, scene: Scene, settings: Settings, pixel_size: int = 1) -> int:
+        """Cancel the render in progress and begin this one at its coarsest step (down to ``pixel_size``,
+        ``refinement_steps``); returns its generation. The previous images stay ``latest`` until the first
+        new one replaces them."""
         self.cancel(wait=False)
         with self._lock:
             self._generation += 1
@@ -160,7 +166,7 @@ class ProgressiveRenderer:
             base = self._prepared
             if base is not None:
                 base.acquire()
-        worker = threading.Thread(target=self._run, args=(scene, settings, generation, stop, base),
+        worker = threading.Thread(target=self._run, args=(scene, settings, pixel_size, generation, stop, base),
                                   name="lazyvis-viewport", daemon=True)
         self._worker = worker
         worker.start()
@@ -219,12 +225,12 @@ class ProgressiveRenderer:
             return self._error
 
     # -- the worker's side ---------------------------------------------------------------------------------
-    def _run(self, scene: Scene, settings: Settings, generation: int, stop: threading.Event,
+    def _run(self, scene: Scene, settings: Settings, pixel_size: int, generation: int, stop: threading.Event,
              base: PreparedScene | None) -> None:
         started = time.perf_counter()
         progress = _Cancellable(stop)  # made on this thread: the core asks it for cancels here
         prepared = None  # the prepared scene this worker holds (acquired), released at the end
-        steps = refinement_steps(settings, scene.camera.width, scene.camera.height)
+        steps = refinement_steps(settings, scene.camera.width, scene.camera.height, pixel_size)
         try:
             if base is not None and base.serves(scene, settings):
                 prepared, base = base, None

@@ -19,7 +19,7 @@ from lazyvis_addon.blender import viewport  # noqa: E402
 from lazyvis_addon.blender.export import export_depsgraph  # noqa: E402
 from lazyvis_addon.blender.properties import settings_from_scene  # noqa: E402
 from lazyvis_addon.core.camera import camera_rays  # noqa: E402
-from lazyvis_addon.core.progressive import ViewportImage  # noqa: E402
+from lazyvis_addon.core.progressive import ViewportImage, scaled_camera  # noqa: E402
 from lazyvis_addon.core.render import render  # noqa: E402
 
 
@@ -31,7 +31,8 @@ def camera_view(camera, scene, width, height):
                                            scale_y=scene.render.pixel_aspect_y)
     return SimpleNamespace(region=SimpleNamespace(width=width, height=height),
                            region_data=SimpleNamespace(view_matrix=camera.matrix_world.inverted(),
-                                                       window_matrix=projection))
+                                                       window_matrix=projection),
+                           preferences=bpy.context.preferences)
 
 
 @pytest.mark.parametrize("kind, shift, size", list(itertools.product(
@@ -139,6 +140,31 @@ def test_the_final_viewport_image_through_the_camera_is_the_f12_render(scene, tm
     close = np.isclose(final.image, f12, rtol=1e-4, atol=1e-5).all(axis=-1)
     assert close.mean() > 0.99, f"{(~close).sum()} of {close.size} pixels differ"
     assert np.abs(final.image - f12).mean() < 1e-4 * np.abs(f12).mean()
+
+
+def test_the_viewport_pixel_size_sets_the_finest_step(scene):
+    """Render Properties > Performance > Viewport > Pixel Size: with 2 the steps stop at 1/2 and the final
+    image is the render at half the region's size (each pixel over 2 x 2 region pixels); a change of it
+    restarts the render; Automatic follows the interface's pixel size."""
+    camera = lit_scene(scene)
+    engine = FakeEngine()
+    session = engine.session
+    context = camera_view(camera, scene, 32, 24)
+    scene.render.preview_pixel_size = '2'
+    assert viewport.viewport_pixel_size(context, scene) == 2
+    viewport.view_update(engine, context, bpy.context.evaluated_depsgraph_get())
+    assert session.renderer.wait(600.0) and session.message is None
+    final = session.latest
+    assert final.final and final.divisor == 2 and final.image.shape == (12, 16, 4)
+    want = render(dataclasses.replace(session.scene, camera=scaled_camera(session.camera, 2)), session.settings)
+    np.testing.assert_array_equal(final.image, want.combined)
+    generation = session.renderer.generation
+    scene.render.preview_pixel_size = '1'
+    session.view(session.camera, settings_from_scene(scene), viewport.viewport_pixel_size(context, scene))
+    assert session.renderer.generation == generation + 1
+    assert session.renderer.wait(600.0) and session.latest.divisor == 1 and session.latest.final
+    scene.render.preview_pixel_size = 'AUTO'
+    assert viewport.viewport_pixel_size(context, scene) == max(1, round(bpy.context.preferences.system.pixel_size))
 
 
 def test_a_new_view_renders_again_and_the_same_view_does_not(scene):
