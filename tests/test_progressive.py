@@ -79,36 +79,24 @@ def test_the_pixel_size_is_the_finest_step():
     assert [divisor for divisor, _, _ in refinement_steps(Settings(aa_samples=4), 40, 40, pixel_size=4)] == [8, 4, 4]
 
 
-def test_coarse_start_steps_equal_plain_renders_at_their_resolution(monkeypatch):
-    """With a start resolution of 2 pixels a 40 x 40 view starts at 1/32 (2 x 2 pixels), then 1/16 (3 x 3):
-    every step is the plain render at its resolution, the last the full render."""
-    monkeypatch.setattr(progressive, "START_RESOLUTION", 2)
-    scene = demo_scenes.floating_boxes(resolution=40)
-    settings = Settings(aa_samples=4)
-    images = []
-    renderer = ProgressiveRenderer(on_image=images.append)
-    renderer.start(scene, settings)
-    assert renderer.wait(600.0) and renderer.error is None
-    renderer.close()
-    assert [image.divisor for image in images] == [32, 16, 8, 4, 2, 1, 1]
-    assert [image.image.shape[:2] for image in images[:2]] == [(2, 2), (3, 3)]
-    for image, (divisor, step, final) in zip(images, refinement_steps(settings, 40, 40)):
-        plain = render(dataclasses.replace(scene, camera=scaled_camera(scene.camera, divisor)), step)
-        np.testing.assert_array_equal(image.image, plain.combined)
-    np.testing.assert_array_equal(images[-1].image, render(scene, settings).combined)
-
-
-def test_every_step_equals_a_plain_render_at_its_resolution_and_the_last_the_full_render():
+@pytest.mark.parametrize("start_resolution, divisors", [(START_RESOLUTION, [8, 4, 2, 1, 1]),
+                                                       (2, [32, 16, 8, 4, 2, 1, 1])])
+def test_every_step_equals_a_plain_render_at_its_resolution_and_the_last_the_full_render(monkeypatch,
+                                                                                          start_resolution, divisors):
+    """Also from a start resolution of 2 pixels: a 40 x 40 view then starts at 1/32 (2 x 2 pixels) and
+    1/16 (3 x 3)."""
+    monkeypatch.setattr(progressive, "START_RESOLUTION", start_resolution)
     scene = demo_scenes.floating_boxes(resolution=40)
     settings = Settings(aa_samples=4)
     images = []
     renderer = ProgressiveRenderer(on_image=images.append)
     generation = renderer.start(scene, settings)
     assert renderer.wait(600.0) and renderer.error is None
-    assert [image.divisor for image in images] == [8, 4, 2, 1, 1]
+    renderer.close()
+    assert [image.divisor for image in images] == divisors
     assert all(image.generation == generation for image in images)
     assert [image.seconds for image in images] == sorted(image.seconds for image in images)
-    for image, (divisor, step, final) in zip(images, refinement_steps(settings)):
+    for image, (divisor, step, final) in zip(images, refinement_steps(settings, 40, 40)):
         plain = render(dataclasses.replace(scene, camera=scaled_camera(scene.camera, divisor)), step)
         assert image.image.shape == (-(-40 // divisor), -(-40 // divisor), 4) and image.final == final
         np.testing.assert_array_equal(image.image, plain.combined)
