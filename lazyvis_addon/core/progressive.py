@@ -39,7 +39,7 @@ DIVISORS = (8, 4, 2, 1)
 
 # Before 1/8, coarser steps (each twice the next one's divisor) until the first image is at most this many
 # pixels along the view's longer side, as Cycles' viewport started (its former Start Resolution, 64 by
-# default): at 1280 x 720 the 1/8 step of the tree sample took 1.25 s, its 40 x 23 pixels at 1/32 0.1 s.
+# default): at 1280 x 720 the 1/8 step of the tree sample took 1.25 s, its 40 x 23 pixels at 1/32 0.15 s.
 START_RESOLUTION = 64
 
 
