@@ -1031,3 +1031,20 @@ def test_centre_suffices_where_the_narrow_filter_sees_one_untextured_triangle():
         assert not centre_suffices(scene, tracer, pixels, seen, Settings(), global_pixels(scene.camera)).any()
     finally:
         tracer.close()
+
+
+@pytest.mark.parametrize("surfaces_in_batch", [5, 3000])
+def test_coverage_keys_are_grouped_as_np_unique_groups_them(surfaces_in_batch):
+    """A batch of coverage rays (samples first, then the other rays, each run in pixel order) grouped by
+    (pixel, surface): by counting over the surfaces the batch sees (5 of 20,000) or by sorting (3,000 of
+    them: too many to count over), the keys, the rays' groups and the counts are np.unique's."""
+    generator = np.random.default_rng(7)
+    first, pixels, stride = 40, 200, 20_000
+    seen = generator.choice(np.arange(-1, stride - 1), surfaces_in_batch, replace=False)
+    owner = np.concatenate([np.sort(generator.integers(first, first + pixels, 900)),
+                            np.sort(generator.integers(first, first + pixels, 3000))])
+    stratum = generator.choice(seen, len(owner))
+    want = np.unique(owner * stride + stratum + 1, return_inverse=True, return_counts=True)
+    got = antialias_module._grouped(owner, stratum, first, pixels, stride)
+    for mine, theirs in zip(got, want):
+        np.testing.assert_array_equal(mine, theirs.reshape(-1))

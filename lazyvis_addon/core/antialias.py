@@ -514,12 +514,12 @@ def pixel_coverage(scene: Scene, tracer, pixels: np.ndarray, counts: np.ndarray,
         batch = np.arange(lo, hi)
         owner = np.concatenate([np.repeat(batch, counts[lo:hi]), np.repeat(batch, extra[lo:hi])])
         stratum = np.concatenate([sample_stratum[first_sample[lo]:first_sample[hi]], stratum_of(triangle, strata)])
-        key, inverse, hit = np.unique(owner * stride + stratum + 1, return_inverse=True, return_counts=True)
+        key, inverse, hit = _grouped(owner, stratum, lo, hi - lo, stride)
         keys.append(key)
         hits.append(hit)
         ray_position = np.concatenate([own_position, extra_position])
-        position_sums.append(np.stack([np.bincount(inverse.reshape(-1), weights=ray_position[:, axis],
-                                                   minlength=len(key)) for axis in range(2)], axis=1))
+        position_sums.append(np.stack([np.bincount(inverse, weights=ray_position[:, axis], minlength=len(key))
+                                       for axis in range(2)], axis=1))
         if textured is not None:
             # Albedo of the rays on textured triangles (NaN elsewhere, and so the sums of other surfaces: a
             # surface is one material): the samples' is known, the others' looked up.
@@ -529,7 +529,7 @@ def pixel_coverage(scene: Scene, tracer, pixels: np.ndarray, counts: np.ndarray,
             on = np.flatnonzero(triangle >= 0)
             on = on[textured[triangle[on]]]
             ray_albedo[offset + on] = surface_albedo(scene, triangle[on], found.u[on], found.v[on])
-            albedo_sums.append(np.stack([np.bincount(inverse.reshape(-1), weights=ray_albedo[:, channel],
+            albedo_sums.append(np.stack([np.bincount(inverse, weights=ray_albedo[:, channel],
                                                      minlength=len(key)) for channel in range(3)], axis=1))
     key, hit = np.concatenate(keys), np.concatenate(hits)
     pixel = key // stride
@@ -538,6 +538,28 @@ def pixel_coverage(scene: Scene, tracer, pixels: np.ndarray, counts: np.ndarray,
     centroid = np.where((hit >= PLANE_POINTS)[:, None], np.concatenate(position_sums) / hit[:, None], np.nan)
     return Coverage(pixel, key % stride - 1, hit / rays[pixel], stride, int(rays.sum()), albedo, strata.parent,
                     centroid)
+
+
+def _grouped(owner: np.ndarray, stratum: np.ndarray, first: int, pixels: int, stride: int
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``np.unique(owner * stride + stratum + 1, return_inverse=True, return_counts=True)`` for a batch of
+    coverage rays: ``owner`` (N,) int64 in first .. first + pixels - 1, ``stratum`` (N,) int64 in -1 .. stride
+    - 2. By counting over (pixel, surface present in the batch) where that range is at most a few times the
+    rays, by np.unique's sort otherwise: a scene's surfaces are many (chairs.blend: 11 k, so the keys' range
+    was 100 times the rays) but a batch sees few, and the sort of chairs.blend's 7 million coverage rays at
+    512 px took 0.73 s of a 13 s render on one thread. The same arrays either way."""
+    present = np.bincount(stratum + 1, minlength=stride) > 0
+    local_stride = int(present.sum())
+    if pixels * local_stride > 4 * len(owner) + 4096:
+        key, inverse, hit = np.unique(owner * stride + stratum + 1, return_inverse=True, return_counts=True)
+        return key, inverse.reshape(-1), hit
+    local = np.cumsum(present) - 1  # a surface's rank among those present: order kept
+    counts = np.bincount((owner - first) * local_stride + local[stratum + 1], minlength=pixels * local_stride)
+    found = np.flatnonzero(counts)
+    rank = np.zeros(len(counts), np.int64)
+    rank[found] = np.arange(len(found))
+    key = (found // local_stride + first) * stride + np.flatnonzero(present)[found % local_stride]
+    return key, rank[(owner - first) * local_stride + local[stratum + 1]], counts[found]
 
 
 # Shaded samples an edge pixel draws before the rest of its allocation (with coverage rays its centre is
