@@ -197,26 +197,23 @@ def prepare(scene: Scene, settings: Settings | None = None, progress: Progress |
     # Let go of the tracer however preparing ends (a cancel included): its threads would otherwise live
     # until the exception's frames are collected.
     try:
-        same_shapes = same_triangles and reuse.silhouettes == silhouettes and \
-            _equal_data(_light_shapes(validated), _light_shapes(reuse.scene))
-        if same_shapes and _equal_data(_light_powers(validated), _light_powers(reuse.scene)):
-            # The frames, the extent and the edge tree depend on the triangles and the lights only.
-            extent, frames, edges = reuse.extent, reuse.frames, reuse.edges
-            kernels_compiled, frame_warnings = False, list(reuse._frame_warnings)
-            for message in frame_warnings:
-                progress.warn(message)
-            reused += ("lights",)
-        elif same_shapes:
-            # A light's strength or colour changed (a slider dragged in the viewport): the frames carry the
-            # radiance, the rest only the lights' shapes (suzanne_dense3 brighter: 0.18 s to prepare with its
-            # edge tree built again, 0.025 s keeping it).
+        if same_triangles and reuse.silhouettes == silhouettes and \
+                _equal_data(_light_fields(validated, power=False), _light_fields(reuse.scene, power=False)):
+            # The extent and the edge tree depend on the triangles and the lights' shapes only; the frames
+            # carry the radiance too: made again where only a light's strength or colour changed (a slider
+            # dragged in the viewport; suzanne_dense3 brighter: 0.18 s to prepare with its edge tree built
+            # again, 0.025 s keeping it).
             extent, edges = reuse.extent, reuse.edges
-            frames = light_frames(validated.lights, validated.facing, scene_centre(validated), extent, validated.hulls)
-            frames.part_of = reuse.frames.part_of
+            same_power = _equal_data(_light_fields(validated, power=True), _light_fields(reuse.scene, power=True))
+            frames = reuse.frames
+            if not same_power:
+                frames = light_frames(validated.lights, validated.facing, scene_centre(validated), extent,
+                                      validated.hulls)
+                frames.part_of = reuse.frames.part_of
             kernels_compiled, frame_warnings = False, list(reuse._frame_warnings)
             for message in frame_warnings:
                 progress.warn(message)
-            reused += ("edge tree",)
+            reused += ("lights",) if same_power else ("edge tree",)
         else:
             extent = scene_extent(validated)
             frames = light_frames(validated.lights, validated.facing, scene_centre(validated), extent, validated.hulls)
@@ -241,20 +238,15 @@ def prepare(scene: Scene, settings: Settings | None = None, progress: Progress |
                          progress.warnings[warned:], frame_warnings, reused)
 
 
-# The fields of a scene's lights that carry their power, not their shape (``_light_shapes``).
+# The fields of a scene's lights that carry their power, not their shape (``_light_fields``).
 _POWER_FIELDS = {"radiance", "intensity"}
 
 
-def _light_shapes(scene: Scene) -> tuple:
-    """The fields of ``scene``'s lights, facing lamps and emitter hulls but their power (``_POWER_FIELDS``):
-    what the extent, the edge tree and the frames' geometry depend on."""
-    return tuple(tuple(getattr(part, f.name) for f in fields(part) if f.name not in _POWER_FIELDS)
-                 for part in (scene.lights, scene.facing, scene.hulls))
-
-
-def _light_powers(scene: Scene) -> tuple:
-    """The power fields of ``scene``'s lights, facing lamps and emitter hulls (``_light_shapes``' rest)."""
-    return tuple(tuple(getattr(part, f.name) for f in fields(part) if f.name in _POWER_FIELDS)
+def _light_fields(scene: Scene, power: bool) -> tuple:
+    """The power fields (``_POWER_FIELDS``) of ``scene``'s lights, facing lamps and emitter hulls, or with
+    ``power`` False all their other fields: what the extent, the edge tree and the frames' geometry depend
+    on."""
+    return tuple(tuple(getattr(part, f.name) for f in fields(part) if (f.name in _POWER_FIELDS) == power)
                  for part in (scene.lights, scene.facing, scene.hulls))
 
 
