@@ -495,13 +495,18 @@ def projected_solid_angle_uv(uv: np.ndarray, count: np.ndarray, local: np.ndarra
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _edge_vector(a0, a1, a2, b0, b1, b2):
-    """One edge's term of the irradiance vector (times 2): the unit vector of a x b times the angle between
-    the directions a and b (scalars: no arrays, so nothing to reference-count when inlined)."""
-    length_a = max(np.sqrt(a0 * a0 + a1 * a1 + a2 * a2), 1e-300)
-    length_b = max(np.sqrt(b0 * b0 + b1 * b1 + b2 * b2), 1e-300)
-    a0, a1, a2 = a0 / length_a, a1 / length_a, a2 / length_a
-    b0, b1, b2 = b0 / length_b, b1 / length_b, b2 / length_b
+def _unit(a0, a1, a2):
+    """The direction (a0, a1, a2) as a unit vector (scalars; a zero vector stays zero)."""
+    length = max(np.sqrt(a0 * a0 + a1 * a1 + a2 * a2), 1e-300)
+    return a0 / length, a1 / length, a2 / length
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _unit_edge_vector(a0, a1, a2, b0, b1, b2):
+    """One edge's term of the irradiance vector (times 2) between unit directions a and b: the unit vector
+    of a x b times the angle between them (scalars: no arrays, so nothing to reference-count when inlined).
+    The callers normalise each vertex once for the two edges that share it (as a function of both ends
+    the normalising was half of the work, and the same numbers: the kernels' results are unchanged)."""
     c0, c1, c2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
     sin = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
     cos = a0 * b0 + a1 * b1 + a2 * b2
@@ -522,14 +527,17 @@ def _projected_solid_angles_uv(uv, count, local, normal_local, out):
             continue
         height = -local[n, 2]
         total0, total1, total2 = 0.0, 0.0, 0.0
+        f0, f1, f2 = _unit(uv[n, 0, 0] - local[n, 0], uv[n, 0, 1] - local[n, 1], height)
+        a0, a1, a2 = f0, f1, f2
         for k in range(k_count):
-            j = k + 1 if k + 1 < k_count else 0
-            a0, a1, a2 = uv[n, k, 0] - local[n, 0], uv[n, k, 1] - local[n, 1], height
-            b0, b1, b2 = uv[n, j, 0] - local[n, 0], uv[n, j, 1] - local[n, 1], height
-            e0, e1, e2 = _edge_vector(a0, a1, a2, b0, b1, b2)
+            b0, b1, b2 = f0, f1, f2  # the last edge closes onto vertex 0
+            if k + 1 < k_count:
+                b0, b1, b2 = _unit(uv[n, k + 1, 0] - local[n, 0], uv[n, k + 1, 1] - local[n, 1], height)
+            e0, e1, e2 = _unit_edge_vector(a0, a1, a2, b0, b1, b2)
             total0 += e0
             total1 += e1
             total2 += e2
+            a0, a1, a2 = b0, b1, b2
         out[n] = abs(0.5 * total0 * normal_local[n, 0] + 0.5 * total1 * normal_local[n, 1]
                      + 0.5 * total2 * normal_local[n, 2])
 
@@ -542,14 +550,17 @@ def _irradiance_vectors(directions, out):
     n_polygons, width = directions.shape[0], directions.shape[1]
     for n in range(n_polygons):
         total0, total1, total2 = 0.0, 0.0, 0.0
+        f0, f1, f2 = _unit(directions[n, 0, 0], directions[n, 0, 1], directions[n, 0, 2])
+        a0, a1, a2 = f0, f1, f2
         for k in range(width):
-            j = k + 1 if k + 1 < width else 0
-            a0, a1, a2 = directions[n, k, 0], directions[n, k, 1], directions[n, k, 2]
-            b0, b1, b2 = directions[n, j, 0], directions[n, j, 1], directions[n, j, 2]
-            e0, e1, e2 = _edge_vector(a0, a1, a2, b0, b1, b2)
+            b0, b1, b2 = f0, f1, f2  # the last edge closes onto vertex 0
+            if k + 1 < width:
+                b0, b1, b2 = _unit(directions[n, k + 1, 0], directions[n, k + 1, 1], directions[n, k + 1, 2])
+            e0, e1, e2 = _unit_edge_vector(a0, a1, a2, b0, b1, b2)
             total0 += e0
             total1 += e1
             total2 += e2
+            a0, a1, a2 = b0, b1, b2
         out[n, 0], out[n, 1], out[n, 2] = 0.5 * total0, 0.5 * total1, 0.5 * total2
 
 

@@ -38,6 +38,38 @@ MAX_GRID = 24
 CELL_BATCH = 1 << 15
 
 
+@dataclasses.dataclass(frozen=True)
+class RegionPolygons:
+    """The (u, v) polygons of a chunk's regions, gathered only for the regions asked for (``take``): a
+    couple's light stays in the couples' table and a cell's in the cells' (a table of every region's
+    polygon was a copy of each chunk's lights, 34 vertices for a disk light, which took suzanne_dense3 at
+    512 px 0.9 s of 25 on one thread; the polygons are read again only for busy and whole regions).
+
+    couple_uv : (Nc, K, 2) float64    every couple's clipped light (``ReceiverLight.uv``).
+    region_couple, region_cell : (R,) int64    each region's couple, and its row of ``cell_uv`` (-1: the
+                                      region is its couple's light).
+    cell_uv : (C, Kc, 2) float64      the cells' polygons (padded).
+    """
+
+    couple_uv: np.ndarray
+    region_couple: np.ndarray
+    region_cell: np.ndarray
+    cell_uv: np.ndarray
+
+    def take(self, rows: np.ndarray) -> np.ndarray:
+        """(len(rows), W, 2) float64 the polygons of regions ``rows`` (padded to a common width)."""
+        cell = self.region_cell[rows]
+        in_cell = np.flatnonzero(cell >= 0)
+        if len(in_cell) == 0:
+            return self.couple_uv[self.region_couple[rows]]
+        width = max(self.couple_uv.shape[1], self.cell_uv.shape[1])
+        out = np.empty((len(rows), width, 2))
+        of_light = np.flatnonzero(cell < 0)
+        out[of_light] = pad_to(self.couple_uv[self.region_couple[rows[of_light]]], width)
+        out[in_cell] = pad_to(self.cell_uv[cell[in_cell]], width)
+        return out
+
+
 def couple_regions(couples: ReceiverLight, frames: LightFrames, arcs: Arcs, arcs_of: np.ndarray,
                    reference: np.ndarray, reference_uv: np.ndarray, members: np.ndarray):
     """The regions of the couples ``members`` (sorted) and their arcs.
@@ -49,18 +81,19 @@ def couple_regions(couples: ReceiverLight, frames: LightFrames, arcs: Arcs, arcs
 
     Returns
     -------
-    region_couple (R,) int64, region_uv (R, W, 2), region_count (R,), the arcs per region (``Arcs`` whose
-    ``couple`` is the region, in region order, jumps relative to each region's reference point) and the
-    regions' reference points (R, 2) in (u, v), how many of the regions are cells, and (R,) int64
-    D(region's R) - D(couple's R) (0 for a couple's light; see ``_region_arcs``). Regions follow the
-    members' order.
+    region_couple (R,) int64, ``RegionPolygons`` (their (u, v) polygons), region_count (R,), the arcs per
+    region (``Arcs`` whose ``couple`` is the region, in region order, jumps relative to each region's
+    reference point) and the regions' reference points (R, 2) in (u, v), how many of the regions are cells,
+    and (R,) int64 D(region's R) - D(couple's R) (0 for a couple's light; see ``_region_arcs``). Regions
+    follow the members' order.
     """
     grid = np.where(arcs_of[members] > CELL_ARCS,
                     np.minimum(np.ceil(np.sqrt(arcs_of[members] / CELL_TARGET)), MAX_GRID), 0).astype(np.int64)
     heavy_rows = np.flatnonzero(grid > 0)
     if len(heavy_rows) == 0:  # every region is a couple's light: the arcs stay, renumbered by member
         region_arcs = dataclasses.replace(arcs, couple=np.searchsorted(members, arcs.couple))
-        return (members, couples.uv[members], couples.count[members], region_arcs, reference_uv[members], 0,
+        polygons = RegionPolygons(couples.uv, members, np.full(len(members), -1, np.int64), np.zeros((0, 3, 2)))
+        return (members, polygons, couples.count[members], region_arcs, reference_uv[members], 0,
                 np.zeros(len(members), np.int64))
     heavy = members[heavy_rows]
     g = grid[heavy_rows]
@@ -105,19 +138,17 @@ def couple_regions(couples: ReceiverLight, frames: LightFrames, arcs: Arcs, arcs
     n_regions = int(regions_of.sum())
     region_couple = np.repeat(members, regions_of)
     light_rows = np.flatnonzero(grid == 0)
-    width = max(couples.uv.shape[1], cell_uv.shape[1])
-    region_uv = np.empty((n_regions, width, 2))
+    region_cell = np.full(n_regions, -1, np.int64)
     region_count = np.empty(n_regions, np.int64)
     region_ref_uv = np.empty((n_regions, 2))
     light_region = region_first[light_rows]
-    region_uv[light_region] = pad_to(couples.uv[members[light_rows]], width)
     region_count[light_region] = couples.count[members[light_rows]]
     region_ref_uv[light_region] = reference_uv[members[light_rows]]
     # A heavy couple's k-th non-empty cell is its region region_first + k.
     kept_owner = owner[nonempty]
     rank = np.arange(len(kept_owner)) - (np.cumsum(regions_of[heavy_rows]) - regions_of[heavy_rows])[kept_owner]
     cell_region = region_first[heavy_rows][kept_owner] + rank
-    region_uv[cell_region] = pad_to(cell_uv, width)
+    region_cell[cell_region] = np.arange(len(cell_region))
     region_count[cell_region] = cell_count
     cell_ref_uv = reference_points(cell_uv, cell_count)
     region_ref_uv[cell_region] = cell_ref_uv
@@ -158,7 +189,8 @@ def couple_regions(couples: ReceiverLight, frames: LightFrames, arcs: Arcs, arcs
             m = out[-1]
             # Copies: slices would keep the larger buffers alive.
             region_arcs = Arcs(*(array[:m].copy() for array in out[:-1]))
-            return region_couple, region_uv, region_count, region_arcs, region_ref_uv, len(cell_region), carry
+            polygons = RegionPolygons(couples.uv, region_couple, region_cell, cell_uv)
+            return region_couple, polygons, region_count, region_arcs, region_ref_uv, len(cell_region), carry
         capacity *= 4
 
 

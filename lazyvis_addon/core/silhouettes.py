@@ -443,7 +443,6 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
         # From a lifted origin the receiver's own triangle is an occluder like any other: it can only hide
         # the light below its plane, as Cycles' shadow rays meet it there (it skips it above).
         own = np.where((origin_shift != 0).any(axis=1), -1, own)
-    light_dirs = couples.directions(frames)
     bound = bounding_cone(couples, frames)
     reference_uv = reference_points(couples.uv, couples.count)
     reference = couples.directions(frames, reference_uv[:, None, :], np.arange(n_couples))[:, 0]
@@ -497,7 +496,7 @@ def silhouette_pieces(surface, frames: LightFrames, edges: MeshEdges, tracer, co
                             unit_uv_low, unit_uv_high)
     chunks = detect_arcs(edges, LEAF_EDGES, hulls, query_light, (query_unit, query_units, unit_hulls, unit_first,
                                                                  unit_size), by_query, couples, frames, position,
-                         own, light_dirs, bound, reference, ARC_CHUNK)
+                         own, bound, reference, ARC_CHUNK)
     for (first, last), found, tests, visits in chunks:  # chunks of queries, about ARC_CHUNK arcs each
         members = np.sort(by_query[query_first[first]:query_first[last - 1] + query_size[last - 1]])
         arcs = Arcs(*found)  # in query order; gathered by couple where the regions are made
@@ -518,7 +517,7 @@ def _visible_parts(surface, couple_pixel, couples, frames, edges, tracer, arcs: 
     arcs = arcs.by_couple(len(couple_pixel))
     # Regions: a couple's light, or, where many arcs cross it (foliage), the cells of a grid over it, so
     # that the arrangement's cost (pairs of arcs) follows the arcs per cell.
-    region_couple, region_uv, region_count, region_arcs, region_ref_uv, cells, carry = couple_regions(
+    region_couple, region_polygons, region_count, region_arcs, region_ref_uv, cells, carry = couple_regions(
         couples, frames, arcs, arcs_of, reference, reference_uv, members)
     stats["cells"] += cells
     region_arcs_of = np.bincount(region_arcs.couple, minlength=len(region_couple))
@@ -577,7 +576,7 @@ def _visible_parts(surface, couple_pixel, couples, frames, edges, tracer, arcs: 
     sub = dataclasses.replace(region_arcs, couple=renumber[region_arcs.couple])
     # Directions only of the regions arcs cross: a disk light is a polygon of 64 vertices, and working
     # them out for every region took suzanne_dense3 at 512 px 2.8 s of 36 on one thread.
-    busy_dirs = couples.directions(frames, region_uv[busy], region_couple[busy])
+    busy_dirs = couples.directions(frames, region_polygons.take(busy), region_couple[busy])
     busy_ref = couples.directions(frames, region_ref_uv[busy][:, None, :], region_couple[busy])[:, 0]
     piece_region, p_start, p_end, sign, whole, inconsistent = visible_fans(
         sub, busy_dirs, region_count[busy], busy_ref, depth[busy])
@@ -586,6 +585,6 @@ def _visible_parts(surface, couple_pixel, couples, frames, edges, tracer, arcs: 
     piece_couple = region_couple[piece_region]
     whole_regions = np.concatenate([plain, busy[whole]])
     uv = _fan_triangles(couples, frames, piece_couple, region_ref_uv[piece_region], p_start, p_end)
-    polygons = (region_couple[whole_regions], trim(region_uv[whole_regions], region_count[whole_regions]),
+    polygons = (region_couple[whole_regions], trim(region_polygons.take(whole_regions), region_count[whole_regions]),
                 region_count[whole_regions])
     return uv, piece_couple, sign, polygons
