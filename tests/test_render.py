@@ -282,6 +282,35 @@ def test_thread_count_and_pixel_batch_do_not_change_the_image():
             np.testing.assert_array_equal(getattr(out, name), getattr(reference, name), err_msg=f"{name} {settings}")
 
 
+def test_numpy_blas_runs_on_one_thread_during_a_render_and_as_before_after_it():
+    """A render's parallelism is its own pool: while it runs, numpy's BLAS is held to one thread (each pool
+    thread's matrix products started a BLAS team that spun on the cores the pool needed), and afterwards
+    the process's BLAS threads are what they were, also after a cancel."""
+    threadpoolctl = pytest.importorskip("threadpoolctl")
+
+    def blas_threads() -> list[int]:
+        return [info["num_threads"] for info in threadpoolctl.threadpool_info() if info["user_api"] == "blas"]
+
+    before = blas_threads()
+    assert before, "numpy's BLAS was not found: the test would prove nothing"
+    with threadpoolctl.threadpool_limits(limits=2, user_api="blas"):  # more than one, whatever the machine has
+        assert set(blas_threads()) == {2}
+        seen = []
+
+        class Watch(Progress):
+            def check_cancel(self):
+                seen.append(blas_threads())
+                super().check_cancel()
+
+        render(demo_scenes.floating_boxes(resolution=24, n_boxes=3), Settings(threads=2), Watch())
+        assert seen and all(threads == [1] * len(before) for threads in seen), seen[:3]
+        assert set(blas_threads()) == {2}
+        with pytest.raises(RenderCancelled):
+            render(demo_scenes.floating_boxes(resolution=24, n_boxes=3), Settings(threads=2), CancelAfter(0.0))
+        assert set(blas_threads()) == {2}
+    assert blas_threads() == before
+
+
 def test_runs_of_anti_aliasing_samples_and_coverage_rays_do_not_change_the_image(monkeypatch):
     """Anti-aliasing shades its samples in runs of pixels of about AA_SHADE_BATCH samples and traces
     coverage rays in batches of COVERAGE_BATCH (which bound its memory): with runs of 97 samples and

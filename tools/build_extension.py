@@ -38,11 +38,11 @@ def download_wheel(path: Path) -> None:
     if path.exists():
         return
     name, version, python, abi, platform_tags = path.name[:-len(".whl")].split("-")
-    command = [sys.executable, "-m", "pip", "download", "--no-deps", "--only-binary=:all:",
-               "--python-version", python[2:3] + "." + python[3:], "--implementation", python[:2],
-               "--abi", abi, "--dest", str(path.parent)]
-    for tag in platform_tags.split("."):
-        command += ["--platform", tag]
+    command = [sys.executable, "-m", "pip", "download", "--no-deps", "--only-binary=:all:", "--dest", str(path.parent)]
+    if platform_tags != "any":  # a pure Python wheel (py3-none-any) fits every target as it is
+        command += ["--python-version", python[2:3] + "." + python[3:], "--implementation", python[:2], "--abi", abi]
+        for tag in platform_tags.split("."):
+            command += ["--platform", tag]
     command.append(f"{name}=={version}")
     print("$", " ".join(command))
     subprocess.run(command, check=True)

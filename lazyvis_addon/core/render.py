@@ -23,6 +23,7 @@ from dataclasses import replace
 import numpy as np
 
 from .frame import RenderOutput, blocker_map_frame, frame_camera, global_pixels, silhouette_frame, working_budget_mb
+from .parallel import one_blas_thread
 from .prepared import PreparedScene, prepare
 from .progress import Progress
 from .scene import Camera, Scene
@@ -49,6 +50,13 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
     settings = settings or Settings()
     progress = progress or Progress()
     started = time.perf_counter()
+    with one_blas_thread():  # the render's threads are its parallelism (``parallel.one_blas_thread``)
+        return _render(scene, settings, progress, prepared, started)
+
+
+def _render(scene: Scene, settings: Settings, progress: Progress, prepared: PreparedScene | None,
+            started: float) -> RenderOutput:
+    """``render``'s work."""
     if prepared is None:
         with prepare(scene, settings, progress) as own:  # its warnings went to ``progress`` as they came
             return _render_prepared(own, scene.camera, settings, progress, started, fresh=True)

@@ -1,7 +1,7 @@
 """The extension zip, end to end: built by tools/build_extension.py, installed into bpy with Blender's own
 extension installer, enabled, and rendering a scene, all in fresh processes.
 
-Building downloads the 18 wheels of blender_manifest.toml from PyPI into wheels/ once (about 360 MB, most
+Building downloads the 19 wheels of blender_manifest.toml from PyPI into wheels/ once (about 360 MB, most
 of it llvmlite, Numba's LLVM; later runs reuse them). Without network access the test fails and says so: it does not skip, because a zip
 without its wheels is not an extension anyone can install.
 """
@@ -38,7 +38,8 @@ INSTALL_AND_RENDER = textwrap.dedent("""
     # two places at once, numba from here and llvmlite from there, breaks).
     site.mkdir(parents=True, exist_ok=True)  # a missing folder on the path is remembered as missing
     sys.path.insert(0, str(site))
-    for name in [m for m in sys.modules if m.split(".")[0] in ("embreex", "OpenEXR", "Imath", "numba", "llvmlite")]:
+    for name in [m for m in sys.modules if m.split(".")[0] in ("embreex", "OpenEXR", "Imath", "numba", "llvmlite",
+                                                                 "threadpoolctl")]:
         del sys.modules[name]
     importlib.invalidate_caches()
     result = bpy.ops.extensions.package_install_files(filepath=zip_path, repo="user_default",
@@ -64,10 +65,10 @@ INSTALL_AND_RENDER = textwrap.dedent("""
     scene.render.filepath = exr_path
     bpy.ops.render.render(write_still=True)
 
-    import embreex, numba, OpenEXR
+    import embreex, numba, OpenEXR, threadpoolctl
     engine = next(c for c in bpy.types.RenderEngine.__subclasses__() if getattr(c, "bl_idname", "") == "LAZYVIS")
     report.update(engine_module=engine.__module__, embreex=embreex.__file__, openexr=OpenEXR.__file__,
-                  numba=numba.__file__,
+                  numba=numba.__file__, threadpoolctl=threadpoolctl.__file__,
                   top_level_package_imported="lazyvis_addon" in sys.modules)
     with OpenEXR.File(exr_path) as exr:
         pixels = exr.parts[0].channels["RGBA"].pixels
@@ -112,9 +113,9 @@ def test_extension_zip_installs_enables_and_renders(tmp_path):
     assert "bl_ext.user_default.lazyvis" in report["addons"]
     assert report["engine_module"].startswith("bl_ext.user_default.lazyvis.")  # the installed copy
     assert not report["top_level_package_imported"], "the extension must not import the repository's package"
-    for wheel in ("embreex", "OpenEXR", "numba", "llvmlite"):
+    for wheel in ("embreex", "OpenEXR", "numba", "llvmlite", "threadpoolctl"):
         assert any(name.startswith(wheel) for name in report["wheels"]), report["wheels"]
-    for module in ("embreex", "openexr", "numba"):
+    for module in ("embreex", "openexr", "numba", "threadpoolctl"):
         assert str(user) in report[module], report  # the bundled wheels
     # The centre pixel sees the plane (grey 0.8, no material) straight below the centre of a square light
     # of side 2a = 1 m at h = 1 m with radiance 1: E = 4 s atan(s), s = a / sqrt(a^2 + h^2).
