@@ -18,6 +18,7 @@ from lazyvis_addon.core.demo_scenes import plane_under_light, quad_triangles
 from lazyvis_addon.core.geometry import light_frames
 from lazyvis_addon.core.illumination import analytic, outgoing_radiance, visible_pieces
 from lazyvis_addon.core.antialias import FULL_PROBE_PIXELS
+from lazyvis_addon.core.parallel import one_blas_thread
 from lazyvis_addon.core.frame import (FRAME_PIXEL_BYTES, MIN_WORKING_MB, _primary, band_rows_for, geometry_mb,
                                       working_budget_mb)
 from lazyvis_addon.core.settings import VISIBILITY_METHODS
@@ -285,7 +286,7 @@ def test_thread_count_and_pixel_batch_do_not_change_the_image():
 def test_numpy_blas_runs_on_one_thread_during_a_render_and_as_before_after_it():
     """A render's parallelism is its own pool: while it runs, numpy's BLAS is held to one thread (each pool
     thread's matrix products started a BLAS team that spun on the cores the pool needed), and afterwards
-    the process's BLAS threads are what they were, also after a cancel."""
+    the process's BLAS threads are what they were, also after a cancel and after overlapping renders."""
     threadpoolctl = pytest.importorskip("threadpoolctl")
 
     def blas_threads() -> list[int]:
@@ -307,6 +308,15 @@ def test_numpy_blas_runs_on_one_thread_during_a_render_and_as_before_after_it():
         assert set(blas_threads()) == {2}
         with pytest.raises(RenderCancelled):
             render(demo_scenes.floating_boxes(resolution=24, n_boxes=3), Settings(threads=2), CancelAfter(0.0))
+        assert set(blas_threads()) == {2}
+        # Renders that overlap (the viewport's and F12's, ending in the other order): the limit holds until
+        # the last ends, which gives back the threads from before the first.
+        first, second = one_blas_thread(), one_blas_thread()
+        first.__enter__()
+        second.__enter__()
+        first.__exit__(None, None, None)
+        assert set(blas_threads()) == {1}
+        second.__exit__(None, None, None)
         assert set(blas_threads()) == {2}
     assert blas_threads() == before
 

@@ -7,8 +7,8 @@ import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from concurrent.futures import TimeoutError as FutureTimeout
-from contextlib import AbstractContextManager
-from typing import Callable, Iterable, Sequence
+from contextlib import contextmanager
+from typing import Callable, Iterable, Iterator, Sequence
 
 from threadpoolctl import ThreadpoolController
 
@@ -25,20 +25,34 @@ def thread_count(requested: int) -> int:
 
 _blas_controller: ThreadpoolController | None = None
 _blas_lock = threading.Lock()
+_blas_users = 0
+_blas_limit = None  # threadpoolctl's limit while any render runs; undone when the last one ends
 
 
-def one_blas_thread() -> AbstractContextManager:
+@contextmanager
+def one_blas_thread() -> Iterator[None]:
     """A context in which numpy's BLAS (OpenBLAS, MKL, Accelerate, as threadpoolctl finds it) runs on one
     thread: a render's parallelism is its own thread pool (``map_batches``), and a BLAS call from each of
     its threads (the camera's and the triangle tests' matrix products) started a BLAS team of its own that
     kept spinning on the cores the pool needed. Measured at 512 px on two threads (this machine, two cores,
     interleaved twice): chairs 8.11 / 8.13 -> 7.61 / 7.50 s, suzanne_dense3 12.41 / 11.86 -> 11.89 /
-    11.28 s. The limit is the process's while it lasts; it is restored at the end."""
-    global _blas_controller
+    11.28 s. The limit is the process's: renders that overlap (the viewport's and F12's) share it, and the
+    last to end gives back what the process had before the first began."""
+    global _blas_controller, _blas_users, _blas_limit
     with _blas_lock:
         if _blas_controller is None:  # finding the loaded libraries once: about 2 ms
             _blas_controller = ThreadpoolController()
-    return _blas_controller.limit(limits=1, user_api="blas")
+        if _blas_users == 0:
+            _blas_limit = _blas_controller.limit(limits=1, user_api="blas")
+        _blas_users += 1
+    try:
+        yield
+    finally:
+        with _blas_lock:
+            _blas_users -= 1
+            if _blas_users == 0:
+                _blas_limit.restore_original_limits()
+                _blas_limit = None
 
 
 def map_batches(function: Callable, batches: Sequence, threads: int, progress: Progress | None = None,
