@@ -112,38 +112,25 @@ def terminator_couples(surface, frames: LightFrames, couples: ReceiverLight, cou
     shading, geometric, cutoff = (surface.shading_normal[pixel], surface.geometric_normal[pixel],
                                   surface.lift_cutoff[pixel])
     wide = receiver_light(surface.position[pixel], shading, shading, light_ids[light_row], frames)
-    amount = _lift_at(wide, frames, cutoff, shading, geometric, wide.uv)
+    # The amount before its clamp to 0 .. 1 at the light's vertices: a couple moves where it is positive
+    # at some vertex (where the clamped amount is).
+    raw = _lift_at(wide, frames, cutoff, shading, geometric, wide.uv, clamped=False)
     real = np.arange(wide.uv.shape[1])[None, :] < wide.count[:, None]
-    moving = (wide.count >= 3) & (np.where(real, amount, 0.0).max(axis=1) > 0)
+    moving = (wide.count >= 3) & (np.where(real, raw, 0.0).max(axis=1) > 0)
     if not moving.any():
         return couples, couple_pixel, None
-    pixel, wide, real = pixel[moving], wide.take(moving), real[moving]
+    pixel, wide, raw = pixel[moving], wide.take(moving), raw[moving]
     shading, geometric, cutoff = shading[moving], geometric[moving], cutoff[moving]
-    # The amount before its clamp to 0 .. 1, fitted over the light's vertices by a plane in (u, v): it
-    # grows along ``axis`` by ``gradient`` per unit of u . axis.
-    raw = np.where(real, _lift_at(wide, frames, cutoff, shading, geometric, wide.uv, clamped=False), 0.0)
-    centre = np.where(real[..., None], wide.uv, 0.0).sum(axis=1) / wide.count[:, None]
-    offset = np.where(real[..., None], wide.uv - centre[:, None], 0.0)
-    mean_raw = raw.sum(axis=1) / wide.count
-    moment = np.einsum("nvi,nvj->nij", offset, offset) + 1e-30 * np.eye(2)
-    slope = np.linalg.solve(moment, np.einsum("nvi,nv->ni", offset, np.where(real, raw - mean_raw[:, None], 0.0))
-                            [..., None])[..., 0]
-    gradient = np.linalg.norm(slope, axis=1)
-    flat = ~(gradient > 1e-12)
-    axis = np.where(flat[:, None], (1.0, 0.0), slope / np.where(flat, 1.0, gradient)[:, None])
-    along = np.einsum("nvk,nk->nv", wide.uv, axis)
-    start = np.where(real, along, np.inf).min(axis=1)
-    end = np.where(real, along, -np.inf).max(axis=1)
-    # Strips: one where the fit takes no lift, one where it takes all of it, and between them strips
-    # over which it changes by TERMINATOR_STEP (at most TERMINATOR_STRIPS of them); each strip is then
-    # seen from the origin its vertices' mean amount gives.
-    centre_along = np.einsum("nk,nk->n", centre, axis)
-    safe = np.where(flat, 1.0, gradient)
-    low_level = np.where(flat, start, np.clip(centre_along - mean_raw / safe, start, end))
-    high_level = np.where(flat, end, np.clip(centre_along + (1.0 - mean_raw) / safe, start, end))
-    middle = np.where(high_level > low_level,
-                      np.clip(np.ceil((high_level - low_level) * np.where(flat, 0.0, gradient) / TERMINATOR_STEP), 1,
-                              TERMINATOR_STRIPS), 0).astype(np.int64)
+    # The raw amount fitted over the light's vertices by a plane in (u, v): it grows along ``axis`` by
+    # ``gradient`` per unit of u . axis. Strips: one where the fit takes no lift, one where it takes all of
+    # it, and between them strips over which it changes by TERMINATOR_STEP (at most TERMINATOR_STRIPS of
+    # them); each strip is then seen from the origin its mean amount gives.
+    n_moving = len(pixel)
+    axis, start, end = np.empty((n_moving, 2)), np.empty(n_moving), np.empty(n_moving)
+    low_level, high_level, middle = np.empty(n_moving), np.empty(n_moving), np.empty(n_moving, np.int64)
+    _strip_plan(np.ascontiguousarray(wide.uv, np.float64), np.ascontiguousarray(wide.count, np.int64),
+                np.ascontiguousarray(raw, np.float64), float(TERMINATOR_STEP), int(TERMINATOR_STRIPS), axis, start, end,
+                low_level, high_level, middle)
     below = (low_level > start).astype(np.int64)
     above = (high_level < end).astype(np.int64)
     strips = below + middle + above
@@ -157,15 +144,20 @@ def terminator_couples(surface, frames: LightFrames, couples: ReceiverLight, cou
     cut = _cut_strips(wide, frames, normals, axis, owner, low, high, index == 0, index == strips[owner] - 1)
     # Where the fitted plane is far from the amount (a large light close by), a strip spans more: split
     # those once more, evenly, by the spread of the amount between their vertices.
-    spread, low, high, first, last = cut[4:]
+    spread, low, high, first, last = cut[4:-1]
     pieces = np.where(spread > 2.0 * TERMINATOR_STEP, np.minimum(np.ceil(spread / TERMINATOR_STEP),
                                                                  TERMINATOR_STRIPS), 1).astype(np.int64)
-    if (pieces > 1).any():
-        parent = np.repeat(np.arange(len(pieces)), pieces)
-        index = np.arange(int(pieces.sum())) - np.repeat(np.cumsum(pieces) - pieces, pieces)
+    split = np.flatnonzero(pieces > 1)
+    if len(split):
+        # Only the strips split again are cut again (cutting every strip again, as this did, was a third of
+        # the set-up on the Suzannes); the others keep their first cut, in their place.
+        parts = pieces[split]
+        parent = np.repeat(split, parts)
+        index = np.arange(int(parts.sum())) - np.repeat(np.cumsum(parts) - parts, parts)
         lo, span, n = low[parent], high[parent] - low[parent], pieces[parent]
-        cut = _cut_strips(wide, frames, normals, axis, cut[0][parent], lo + span * index / n,
-                          lo + span * (index + 1) / n, first[parent] & (index == 0), last[parent] & (index == n - 1))
+        again = _cut_strips(wide, frames, normals, axis, cut[0][parent], lo + span * index / n,
+                            lo + span * (index + 1) / n, first[parent] & (index == 0), last[parent] & (index == n - 1))
+        cut = _merged_strips(cut, again, np.flatnonzero(pieces == 1), parent[again[-1]], index[again[-1]])
     owner, strip_uv, strip_count, strip_amount = cut[:4]
     strip = ReceiverLight(wide.light[owner], strip_uv, strip_count, wide.side[owner], wide.local[owner],
                           wide.receiver_in_light[owner])
@@ -191,8 +183,9 @@ def _cut_strips(wide: ReceiverLight, frames: LightFrames, normals: tuple, axis: 
     """The strips low <= u . axis <= high (no lower bound where ``first``, no upper where ``last``) of the
     couples ``owner`` (S,) of ``wide``, clipped, empty ones dropped, as a tuple of (S',) arrays but for uv:
     owner, uv (S', W, 2), count, the lift's amount over each strip (its mean over the strip's area, by
-    one point per fan triangle), the amount's spread between the strip's vertices, and the kept strips'
-    low, high, first and last. ``normals``: each couple's cutoff (N,), shading and geometric normals (N, 3)."""
+    one point per fan triangle), the amount's spread between the strip's vertices, the kept strips'
+    low, high, first and last, and their rows of the input (S',) int64. ``normals``: each couple's cutoff
+    (N,), shading and geometric normals (N, 3)."""
     sides = np.stack([np.concatenate([axis[owner], -low[:, None]], axis=1),
                       np.concatenate([-axis[owner], high[:, None]], axis=1)], axis=1)
     sides[first, 0] = (0.0, 0.0, 1.0)
@@ -205,7 +198,72 @@ def _cut_strips(wide: ReceiverLight, frames: LightFrames, normals: tuple, axis: 
     _strip_amounts(np.ascontiguousarray(uv, np.float64), count, np.ascontiguousarray(wide.light[owner], np.int64),
                    np.ascontiguousarray(wide.local[owner], np.float64), frames.tangent, frames.bitangent,
                    frames.normal, cutoff, shading, geometric, amount, spread)
-    return owner, uv, count, amount, spread, low[kept], high[kept], first[kept], last[kept]
+    return owner, uv, count, amount, spread, low[kept], high[kept], first[kept], last[kept], np.flatnonzero(kept)
+
+
+def _merged_strips(cut: tuple, again: tuple, stay: np.ndarray, again_parent: np.ndarray, again_index: np.ndarray
+                   ) -> tuple:
+    """``_cut_strips``' tuple of the strips ``stay`` (rows of ``cut``) and of the strips ``again`` (cut anew
+    from rows ``again_parent`` of ``cut``, ``again_index`` the k-th of each), each new strip where its parent
+    was, in the order of k: the strips, their couples and amounts in the order cutting every strip again gave.
+    Its last array (rows of the input) is that of the parents."""
+    row = np.concatenate([stay, again_parent])
+    order = np.lexsort((np.concatenate([np.zeros(len(stay), np.int64), again_index]), row))
+    width = max(cut[1].shape[1], again[1].shape[1])
+    merged = []
+    for mine, theirs in zip(cut[:-1], again[:-1]):  # the tuple's nine arrays
+        if mine.ndim == 3:  # the polygons, padded to one width
+            mine, theirs = pad_to(mine, width), pad_to(theirs, width)
+        merged.append(np.concatenate([mine[stay], theirs])[order])
+    return (*merged, cut[-1][row[order]])
+
+
+@njit(cache=True, nogil=True)
+def _strip_plan(uv, count, raw, step, most, axis, start, end, low_level, high_level, middle):
+    """Per couple n (its light uv[n, :count[n]], the raw amount at those vertices ``raw`` (N, K)): the plane
+    in (u, v) fitted to the raw amount by least squares about the vertices' centre, the unit ``axis`` (N, 2)
+    along which it grows ((1, 0) where it is flat), the light's extent ``start`` .. ``end`` along it, the
+    levels where the fit reaches 0 and 1 (clipped to that extent) and the strips between them, steps of
+    ``step`` of the fit, at least 1 and at most ``most`` (0 where the levels meet). Compiled: as numpy
+    passes over (N, K, 2) arrays this was a third of the strips' set-up on the Suzannes."""
+    for n in range(len(count)):
+        k_count = count[n]
+        c0, c1, mean = 0.0, 0.0, 0.0
+        for k in range(k_count):
+            c0 += uv[n, k, 0]
+            c1 += uv[n, k, 1]
+            mean += raw[n, k]
+        c0, c1, mean = c0 / k_count, c1 / k_count, mean / k_count
+        m00, m01, m11, b0, b1 = 1e-30, 0.0, 1e-30, 0.0, 0.0
+        for k in range(k_count):
+            o0, o1, r = uv[n, k, 0] - c0, uv[n, k, 1] - c1, raw[n, k] - mean
+            m00 += o0 * o0
+            m01 += o0 * o1
+            m11 += o1 * o1
+            b0 += o0 * r
+            b1 += o1 * r
+        determinant = m00 * m11 - m01 * m01
+        s0 = (m11 * b0 - m01 * b1) / determinant if determinant > 0 else 0.0
+        s1 = (m00 * b1 - m01 * b0) / determinant if determinant > 0 else 0.0
+        gradient = np.sqrt(s0 * s0 + s1 * s1)
+        flat = not gradient > 1e-12
+        a0, a1 = (1.0, 0.0) if flat else (s0 / gradient, s1 / gradient)
+        axis[n, 0], axis[n, 1] = a0, a1
+        low, high = np.inf, -np.inf
+        for k in range(k_count):
+            along = uv[n, k, 0] * a0 + uv[n, k, 1] * a1
+            low, high = min(low, along), max(high, along)
+        start[n], end[n] = low, high
+        if flat:
+            low_level[n], high_level[n] = low, high
+            middle[n] = 1 if high > low else 0
+            continue
+        centre_along = c0 * a0 + c1 * a1
+        level_low = min(max(centre_along - mean / gradient, low), high)
+        level_high = min(max(centre_along + (1.0 - mean) / gradient, low), high)
+        low_level[n], high_level[n] = level_low, level_high
+        middle[n] = min(max(np.ceil((level_high - level_low) * gradient / step), 1), most) \
+            if level_high > level_low else 0
 
 
 def _lift_at(couples: ReceiverLight, frames: LightFrames, cutoff, shading, geometric, uv, clamped: bool = True
@@ -321,4 +379,6 @@ def compile_terminator() -> list:
              True, np.empty((1, 3)))
     _strip_amounts(np.zeros((1, 3, 2)), np.full(1, 3, np.int64), np.zeros(1, np.int64), three, three, three, three,
                    np.zeros(1), three, three, np.empty(1), np.empty(1))
-    return [_grazing, _amounts, _strip_amounts]
+    _strip_plan(np.zeros((1, 3, 2)), np.full(1, 3, np.int64), np.zeros((1, 3)), 0.25, 4, np.empty((1, 2)),
+                np.empty(1), np.empty(1), np.empty(1), np.empty(1), np.empty(1, np.int64))
+    return [_grazing, _amounts, _strip_amounts, _strip_plan]
