@@ -488,7 +488,10 @@ def projected_solid_angle_uv(uv: np.ndarray, count: np.ndarray, local: np.ndarra
     receiver is (u - u_x, v - v_x, -height): no per-vertex change of basis, and no (N, K, 3) directions
     stored; only the real vertices are visited (the padding's zero-length edges add nothing)."""
     out = np.empty(len(uv))
-    _projected_solid_angles_uv(np.ascontiguousarray(uv, np.float64), np.ascontiguousarray(count, np.int64),
+    # Read in place, strided or not: the whole lights' polygons come trimmed (``trim``: a view of a table's
+    # first columns), and making them contiguous first copied them, 0.8 s of suzanne's 15 s at 512 px on one
+    # thread (the kernel is compiled for both layouts).
+    _projected_solid_angles_uv(np.asarray(uv, np.float64), np.ascontiguousarray(count, np.int64),
                                np.ascontiguousarray(local, np.float64), np.ascontiguousarray(normal_local, np.float64),
                                out)
     return out
@@ -745,7 +748,8 @@ def compile_geometry() -> tuple:
     """Compile the geometry kernels (or load them from Numba's cache) on one-polygon inputs; returns them."""
     square = np.zeros((1, 4, 3))
     _irradiance_vectors(square, np.empty((1, 3)))
-    _projected_solid_angles_uv(np.zeros((1, 4, 2)), np.zeros(1, np.int64), np.zeros((1, 3)), np.zeros((1, 3)), np.empty(1))
+    for uv in (np.zeros((2, 4, 2)), np.zeros((2, 5, 2))[:, :4]):  # contiguous, and trimmed tables' views
+        _projected_solid_angles_uv(uv, np.zeros(2, np.int64), np.zeros((2, 3)), np.zeros((2, 3)), np.empty(2))
     _directions(np.zeros((1, 4, 2)), np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros((1, 3)), np.zeros((1, 3)),
                 np.zeros((1, 3)), np.zeros((1, 3)), np.empty((1, 4, 3)))
     _clip_by_lines(np.zeros((1, 4, 2)), np.zeros(1, np.int64), np.zeros((1, 2, 3)), np.empty((1, 6, 2)),
