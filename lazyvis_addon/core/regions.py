@@ -42,8 +42,9 @@ CELL_BATCH = 1 << 15
 class RegionPolygons:
     """The (u, v) polygons of a chunk's regions, gathered only for the regions asked for (``take``): a
     couple's light stays in the couples' table and a cell's in the cells' (a table of every region's
-    polygon was a copy of each chunk's lights, 34 vertices for a disk light, which took suzanne_dense3 at
-    512 px 0.9 s of 25 on one thread; the polygons are read again only for busy and whole regions).
+    polygon was a copy of each chunk's lights, 34 vertices for a disk light: line_profiler put 0.9 s of
+    suzanne_dense3's 25 s at 512 px on one thread there; the polygons are read again only for busy and
+    whole regions).
 
     couple_uv : (Nc, K, 2) float64    every couple's clipped light (``ReceiverLight.uv``).
     region_couple, region_cell : (R,) int64    each region's couple, and its row of ``cell_uv`` (-1: the
