@@ -125,6 +125,29 @@ def test_lambert_from_light_coordinates_equals_the_direction_form():
     assert (projected_solid_angle_uv(uv, np.full(50, 2), local, normal) == 0).all()  # no polygon
 
 
+def test_lambert_reads_a_table_in_place_by_rows_and_through_strided_views():
+    """Polygons read in place from a table by ``rows`` (the silhouettes' whole lights, read from the couples'
+    table) or through a trimmed, strided view of it give exactly what the same polygons gathered and
+    contiguous give."""
+    from lazyvis_addon.core.geometry import projected_solid_angle_uv
+    rng = np.random.default_rng(11)
+    count = rng.integers(3, 7, 30)
+    angle = np.sort(rng.uniform(0.0, 2.0 * np.pi, (30, 8)), axis=1)
+    table = np.stack([np.cos(angle), np.sin(angle)], axis=2) * rng.uniform(0.3, 1.0, (30, 1, 1))
+    table[np.arange(8)[None, :] >= count[:, None]] = np.nan  # beyond a polygon's count: never read
+    rows = rng.integers(0, 30, 50)  # with repeats, out of order
+    local = np.concatenate([rng.uniform(-1.0, 1.0, (50, 2)), rng.uniform(0.2, 2.0, (50, 1))], axis=1)
+    normal = rng.normal(size=(50, 3))
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    gathered = np.ascontiguousarray(table[rows][:, :6])
+    expected = projected_solid_angle_uv(gathered, count[rows], local, normal)
+    assert np.isfinite(expected).all() and (expected > 0).all()
+    trimmed = table[:, :6]
+    assert not trimmed.flags.c_contiguous
+    for uv, by_rows in ((table, rows), (trimmed, rows), (table[rows][:, :6], None)):
+        np.testing.assert_array_equal(projected_solid_angle_uv(uv, count[rows], local, normal, by_rows), expected)
+
+
 def test_horizon_clipping_equals_clipping_by_each_line():
     """``receiver_light`` clips every couple's light to its geometric and shading horizons in one compiled
     pass: the same region (area, and every vertex on the lines or inside both) as ``clip_convex`` by one

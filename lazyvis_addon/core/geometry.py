@@ -480,18 +480,20 @@ def irradiance_vector(directions: np.ndarray) -> np.ndarray:
     return out
 
 
-def projected_solid_angle_uv(uv: np.ndarray, count: np.ndarray, local: np.ndarray, normal_local: np.ndarray
-                             ) -> np.ndarray:
+def projected_solid_angle_uv(uv: np.ndarray, count: np.ndarray, local: np.ndarray, normal_local: np.ndarray,
+                             rows: np.ndarray | None = None) -> np.ndarray:
     """``projected_solid_angle`` of polygons in their light's plane, (N,): uv (N, K, 2) padded polygons in the
     light's (u, v) coordinates with ``count`` (N,) vertices, local (N, 3) the receiver in the light's frame
     (u, v, height), normal_local (N, 3) the unit receiver normal in that frame. A vertex seen from the
     receiver is (u - u_x, v - v_x, -height): no per-vertex change of basis, and no (N, K, 3) directions
-    stored; only the real vertices are visited (the padding's zero-length edges add nothing)."""
-    out = np.empty(len(uv))
+    stored; only the real vertices are visited (the padding's zero-length edges add nothing). ``rows``
+    (N,) int64: polygon n is uv[rows[n]] (a table read in place, ``VisiblePieces.rows``)."""
+    out = np.empty(len(count))
+    rows = np.arange(len(count)) if rows is None else np.ascontiguousarray(rows, np.int64)
     # Read in place, strided or not: the whole lights' polygons come trimmed (``trim``: a view of a table's
     # first columns), and making them contiguous first copied them, 0.8 s of suzanne's 15 s at 512 px on one
     # thread (the kernel is compiled for both layouts).
-    _projected_solid_angles_uv(np.asarray(uv, np.float64), np.ascontiguousarray(count, np.int64),
+    _projected_solid_angles_uv(np.asarray(uv, np.float64), rows, np.ascontiguousarray(count, np.int64),
                                np.ascontiguousarray(local, np.float64), np.ascontiguousarray(normal_local, np.float64),
                                out)
     return out
@@ -518,24 +520,26 @@ def _unit_edge_vector(a0, a1, a2, b0, b1, b2):
 
 
 @njit(cache=True, nogil=True)
-def _projected_solid_angles_uv(uv, count, local, normal_local, out):
+def _projected_solid_angles_uv(uv, rows, count, local, normal_local, out):
     # Borrowed (``borrowed``): no reference counting per polygon; the vertices are read in place, as the
     # directions (u - u_x, v - v_x, -height) ``_irradiance_vectors`` sums over, in its order of operations.
-    uv, count, local, normal_local, out = borrowed(uv), borrowed(count), borrowed(local), borrowed(normal_local), \
-        borrowed(out)
-    for n in range(uv.shape[0]):
+    uv, rows, count, local, normal_local = borrowed(uv), borrowed(rows), borrowed(count), borrowed(local), \
+        borrowed(normal_local)
+    out = borrowed(out)
+    for n in range(len(count)):
+        r = rows[n]
         k_count = min(count[n], uv.shape[1])
         if k_count < 3:
             out[n] = 0.0
             continue
         height = -local[n, 2]
         total0, total1, total2 = 0.0, 0.0, 0.0
-        f0, f1, f2 = _unit(uv[n, 0, 0] - local[n, 0], uv[n, 0, 1] - local[n, 1], height)
+        f0, f1, f2 = _unit(uv[r, 0, 0] - local[n, 0], uv[r, 0, 1] - local[n, 1], height)
         a0, a1, a2 = f0, f1, f2
         for k in range(k_count):
             b0, b1, b2 = f0, f1, f2  # the last edge closes onto vertex 0
             if k + 1 < k_count:
-                b0, b1, b2 = _unit(uv[n, k + 1, 0] - local[n, 0], uv[n, k + 1, 1] - local[n, 1], height)
+                b0, b1, b2 = _unit(uv[r, k + 1, 0] - local[n, 0], uv[r, k + 1, 1] - local[n, 1], height)
             e0, e1, e2 = _unit_edge_vector(a0, a1, a2, b0, b1, b2)
             total0 += e0
             total1 += e1
@@ -749,7 +753,8 @@ def compile_geometry() -> tuple:
     square = np.zeros((1, 4, 3))
     _irradiance_vectors(square, np.empty((1, 3)))
     for uv in (np.zeros((2, 4, 2)), np.zeros((2, 5, 2))[:, :4]):  # contiguous, and trimmed tables' views
-        _projected_solid_angles_uv(uv, np.zeros(2, np.int64), np.zeros((2, 3)), np.zeros((2, 3)), np.empty(2))
+        _projected_solid_angles_uv(uv, np.arange(2), np.zeros(2, np.int64), np.zeros((2, 3)), np.zeros((2, 3)),
+                                   np.empty(2))
     _directions(np.zeros((1, 4, 2)), np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros((1, 3)), np.zeros((1, 3)),
                 np.zeros((1, 3)), np.zeros((1, 3)), np.empty((1, 4, 3)))
     _clip_by_lines(np.zeros((1, 4, 2)), np.zeros(1, np.int64), np.zeros((1, 2, 3)), np.empty((1, 6, 2)),

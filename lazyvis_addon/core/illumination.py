@@ -56,6 +56,9 @@ class VisiblePieces:
     sign : (M,) float64 or None  None: the pieces are disjoint. Otherwise they are signed terms whose
                                  weighted sum is the visible region (``visible_pieces(signed=True)``):
                                  only integrals linear in the region may be taken over them.
+    rows : (M,) int64 or None    None: piece i is uv[i]. Otherwise piece i is uv[rows[i]]: ``uv`` is a table
+                                 the pieces are read from in place (the couples' whole clipped lights), not
+                                 gathered for them (``gathered`` does that where an integrator needs it).
     """
 
     couples: ReceiverLight
@@ -65,6 +68,11 @@ class VisiblePieces:
     couple: np.ndarray
     max_rounds: int = 0
     sign: np.ndarray | None = None
+    rows: np.ndarray | None = None
+
+    def gathered(self) -> "VisiblePieces":
+        """The same pieces with their own polygons (``rows`` None)."""
+        return self if self.rows is None else dataclasses.replace(self, uv=self.uv[self.rows], rows=None)
 
 
 def couples_for(surface: SurfacePoints, frames: LightFrames, exclude: np.ndarray | None = None
@@ -390,7 +398,7 @@ def analytic(pieces: VisiblePieces, surface: SurfacePoints, frames: LightFrames,
                              np.einsum("nk,nk->n", normal, frames.bitangent[light]),
                              np.einsum("nk,nk->n", normal, frames.normal[light])], axis=1)
     per_piece = projected_solid_angle_uv(pieces.uv, pieces.count, couples.local[pieces.couple],
-                                         normal_local[pieces.couple])
+                                         normal_local[pieces.couple], pieces.rows)
     if pieces.sign is None:
         return np.bincount(pieces.couple, weights=per_piece, minlength=len(pieces.couple_pixel))
     # Signed terms: rounding can leave a fully hidden light a hair below zero (``clamp`` False: a part of
@@ -633,24 +641,23 @@ def glossy_analytic(pieces: VisiblePieces, frames: LightFrames, bsdf: SurfaceBsd
 
 
 def couple_weights(pieces: VisiblePieces, surface: SurfacePoints, frames: LightFrames, bsdf: SurfaceBsdf,
-                   settings: Settings, pixel_global: np.ndarray, more: VisiblePieces | None = None,
+                   settings: Settings, pixel_global: np.ndarray, more: tuple[VisiblePieces, ...] = (),
                    clamp: bool = True) -> np.ndarray:
     """∫ f cos θ_i dω_i over each couple's visible pieces, (Nc, 3): what multiplies the light's radiance.
 
     ``settings.integrator`` "reduced_mc" samples the whole BSDF; otherwise the diffuse lobe is exact
-    (Lambert's formula) and the GGX lobes follow ``settings.glossy_integrator``. ``more``: further signed
-    terms of the same couples (pieces of another width, as the silhouettes' whole lights beside their fan
-    triangles): the integrals add, and the mirror test sees both sets at once. Spot lights' cones scale
-    each couple's integrals (``facing.spot_factors``).
+    (Lambert's formula) and the GGX lobes follow ``settings.glossy_integrator``. ``more``: further sets of
+    signed terms of the same couples (pieces of another width, as the silhouettes' whole lights and cells
+    beside their fan triangles): the integrals add, and the mirror test sees all sets at once. Spot lights'
+    cones scale each couple's integrals (``facing.spot_factors``).
     """
     weights = _couple_weights(pieces, surface, frames, bsdf, settings, pixel_global, more, clamp)
     light = pieces.couples.light
     coned, spread = (frames.spot_cos_half[light] >= -1.0).any(), (frames.spread[light] < np.pi).any()
     if not (coned or spread):
         return weights
-    sets = [(pieces.uv, pieces.count, pieces.couple, pieces.sign)]
-    if more is not None:
-        sets.append((more.uv, more.count, more.couple, more.sign))
+    sets = [(part.uv, part.count, part.couple, part.sign)
+            for part in (pieces.gathered(), *(m.gathered() for m in more))]
     if coned:
         weights = weights * spot_factors(frames, pieces.couples, pieces.couple_pixel, surface.shading_normal,
                                          sets)[:, None]
@@ -922,20 +929,25 @@ def compile_illumination() -> tuple:
 
 
 def _couple_weights(pieces: VisiblePieces, surface: SurfacePoints, frames: LightFrames, bsdf: SurfaceBsdf,
-                    settings: Settings, pixel_global: np.ndarray, more: VisiblePieces | None = None,
+                    settings: Settings, pixel_global: np.ndarray, more: tuple[VisiblePieces, ...] = (),
                     clamp: bool = True) -> np.ndarray:
     masks = lobe_masks(frames, pieces.couples.light)
-    if more is not None:
+    if more:
         rough = _without_mirrors(bsdf)
-        total = np.maximum(_summed_weights(pieces, surface, frames, rough, settings, pixel_global)
-                           + _summed_weights(more, surface, frames, rough, settings, pixel_global), 0.0)
+        total = _summed_weights(pieces, surface, frames, rough, settings, pixel_global)
+        for part in more:  # a set or two
+            total = total + _summed_weights(part, surface, frames, rough, settings, pixel_global)
+        total = np.maximum(total, 0.0)
         if bsdf.glossy.any():
-            uv, count, couple = _concat_pieces((pieces.uv, pieces.count, pieces.couple), (more.uv, more.count, more.couple))
-            both = VisiblePieces(pieces.couples, pieces.couple_pixel, uv, count, couple, pieces.max_rounds,
-                                 np.concatenate([pieces.sign, more.sign]))
-            mirror = mirror_weights(both, frames, bsdf)
+            parts = [part.gathered() for part in (pieces, *more)]
+            uv, count, couple = _concat_pieces(*[(part.uv, part.count, part.couple) for part in parts])
+            every = VisiblePieces(pieces.couples, pieces.couple_pixel, uv, count, couple, pieces.max_rounds,
+                                  np.concatenate([part.sign for part in parts]))
+            mirror = mirror_weights(every, frames, bsdf)
             total = total + (mirror if masks is None else mirror * masks[1])
         return total
+    if pieces.rows is not None and (bsdf.glossy.any() or settings.integrator == "reduced_mc"):
+        pieces = pieces.gathered()  # only Lambert's formula reads a table in place
     mirror = mirror_weights(pieces, frames, bsdf) if bsdf.glossy.any() else 0.0
     if settings.integrator == "reduced_mc":  # the whole BSDF sampled at once: Ray Visibility is warned about
         return reduced_domain_mc(pieces, surface, frames, bsdf, settings, pixel_global) + mirror
@@ -966,8 +978,10 @@ def _summed_weights(pieces: VisiblePieces, surface: SurfacePoints, frames: Light
     total = 0.0
     for lo in range(0, len(pieces.couple), TERM_CHUNK):  # chunks of terms
         rows = slice(lo, lo + TERM_CHUNK)
-        chunk = dataclasses.replace(pieces, uv=pieces.uv[rows], count=pieces.count[rows], couple=pieces.couple[rows],
-                                    sign=None if pieces.sign is None else pieces.sign[rows])
+        in_place = pieces.rows is not None
+        chunk = dataclasses.replace(pieces, uv=pieces.uv if in_place else pieces.uv[rows], count=pieces.count[rows],
+                                    couple=pieces.couple[rows], sign=None if pieces.sign is None else pieces.sign[rows],
+                                    rows=pieces.rows[rows] if in_place else None)
         total = total + _couple_weights(chunk, surface, frames, bsdf, settings, pixel_global, clamp=False)
     return total
 

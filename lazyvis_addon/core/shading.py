@@ -168,16 +168,22 @@ def _shade_silhouettes(part: SurfacePoints, bsdf: SurfaceBsdf, pixel_global: np.
         visible = np.zeros(len(couple_pixel), bool)
         weights = np.zeros((len(couple_pixel), 3))
         # Chunks of couples: each couple's terms lie in one chunk, so their clamped sums add.
-        for uv, couple, sign, (whole, whole_uv, whole_count) in silhouette_pieces(
+        for uv, couple, sign, lights, (cells, cell_uv, cell_count) in silhouette_pieces(
                 part, frames, edges, tracer, couples, couple_pixel, found, origin_shift):
-            fans = VisiblePieces(couples, couple_pixel, uv, np.full(len(couple), 3, np.int64), couple,
-                                 found["max_arcs_per_couple"], sign)
-            lights_whole = VisiblePieces(couples, couple_pixel, whole_uv, whole_count, whole,
-                                         found["max_arcs_per_couple"], np.ones(len(whole)))
-            weights += couple_weights(fans, part, frames, bsdf, settings, pixel_global, more=lights_whole)
+            rounds_seen = found["max_arcs_per_couple"]
+            fans = VisiblePieces(couples, couple_pixel, uv, np.full(len(couple), 3, np.int64), couple, rounds_seen,
+                                 sign)
+            # Whole lights read in place from the couples' table (``VisiblePieces.rows``), whole cells gathered.
+            whole_lights = VisiblePieces(couples, couple_pixel, couples.uv, couples.count[lights], lights, rounds_seen,
+                                         np.ones(len(lights)), rows=lights)
+            whole_cells = VisiblePieces(couples, couple_pixel, cell_uv, cell_count, cells, rounds_seen,
+                                        np.ones(len(cells)))
+            weights += couple_weights(fans, part, frames, bsdf, settings, pixel_global,
+                                      more=(whole_lights, whole_cells))
             visible[couple] = True
-            visible[whole] = True
-            n_terms += len(couple) + len(whole)
+            visible[lights] = True
+            visible[cells] = True
+            n_terms += len(couple) + len(lights) + len(cells)
             if check_cancel is not None:
                 check_cancel()
         result += reflected_radiance(n_points, frames, couples, couple_pixel, weights)
