@@ -287,7 +287,7 @@ def test_numpy_blas_runs_on_one_thread_during_a_render_and_as_before_after_it():
     """A render's parallelism is its own pool: while it runs, numpy's BLAS is held to one thread (each pool
     thread's matrix products started a BLAS team that spun on the cores the pool needed), and afterwards
     the process's BLAS threads are what they were, also after a cancel and after overlapping renders."""
-    threadpoolctl = pytest.importorskip("threadpoolctl")
+    import threadpoolctl  # a dependency of the core (``parallel.one_blas_thread``)
 
     def blas_threads() -> list[int]:
         return [info["num_threads"] for info in threadpoolctl.threadpool_info() if info["user_api"] == "blas"]

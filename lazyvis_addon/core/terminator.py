@@ -203,19 +203,18 @@ def _cut_strips(wide: ReceiverLight, frames: LightFrames, normals: tuple, axis: 
 
 def _merged_strips(cut: tuple, again: tuple, stay: np.ndarray, again_parent: np.ndarray, again_index: np.ndarray
                    ) -> tuple:
-    """``_cut_strips``' tuple of the strips ``stay`` (rows of ``cut``) and of the strips ``again`` (cut anew
-    from rows ``again_parent`` of ``cut``, ``again_index`` the k-th of each), each new strip where its parent
-    was, in the order of k: the strips, their couples and amounts in the order cutting every strip again gave.
-    Its last array (rows of the input) is that of the parents."""
+    """The owner, uv, count and amount (``_cut_strips``' first four) of the strips ``stay`` (rows of ``cut``)
+    and of the strips ``again`` (cut anew from rows ``again_parent`` of ``cut``, ``again_index`` the k-th of
+    each), each new strip where its parent was, in the order of k: the order cutting every strip again gave."""
     row = np.concatenate([stay, again_parent])
     order = np.lexsort((np.concatenate([np.zeros(len(stay), np.int64), again_index]), row))
     width = max(cut[1].shape[1], again[1].shape[1])
     merged = []
-    for mine, theirs in zip(cut[:-1], again[:-1]):  # the tuple's nine arrays
+    for mine, theirs in zip(cut[:4], again[:4]):  # owner, uv, count, amount
         if mine.ndim == 3:  # the polygons, padded to one width
             mine, theirs = pad_to(mine, width), pad_to(theirs, width)
         merged.append(np.concatenate([mine[stay], theirs])[order])
-    return (*merged, cut[-1][row[order]])
+    return tuple(merged)
 
 
 @njit(cache=True, nogil=True)
