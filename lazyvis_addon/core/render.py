@@ -23,6 +23,7 @@ from dataclasses import replace
 import numpy as np
 
 from .frame import RenderOutput, blocker_map_frame, frame_camera, global_pixels, silhouette_frame, working_budget_mb
+from .heap import retained_heap
 from .parallel import one_blas_thread
 from .prepared import PreparedScene, prepare
 from .progress import Progress
@@ -50,7 +51,9 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
     settings = settings or Settings()
     progress = progress or Progress()
     started = time.perf_counter()
-    with one_blas_thread():  # the render's threads are its parallelism (``parallel.one_blas_thread``)
+    # The render's threads are its parallelism (``parallel.one_blas_thread``), and its batches reuse the
+    # heap's freed memory (``heap.retained_heap``).
+    with one_blas_thread(), retained_heap(settings.memory_budget_mb):
         return _render(scene, settings, progress, prepared, started)
 
 
