@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from lazyvis_addon.core import Camera, Materials, Scene, Settings, render
-from lazyvis_addon.core import edge_tree, regions, silhouettes
+from lazyvis_addon.core import detection, edge_tree, regions, silhouettes
 from lazyvis_addon.core.demo_scenes import box_triangles, look_at, plane_under_light, quad_triangles
 from lazyvis_addon.core.geometry import light_frames
 from lazyvis_addon.core.scene import Lights
@@ -154,12 +154,16 @@ def test_foliage_cells_and_buffers_change_nothing(monkeypatch):
     reference point, whose depth is carried from the couple's across the arcs between (a wrong carry
     fails here); cells, no cells and chunks of a query or two (detection's buffer outgrown again and
     again, each walk going on in a new buffer from the query it was in) give the same image, the
-    reference's."""
+    reference's, and so do the couples' cones in one row at first (outgrown as often)."""
     scene = plane_under_light(resolution=12, blocker=leaves(150, seed=3))
     image, reference = exact(scene)
     assert_exact(image, reference)
     out = render(scene, CENTRES)
     assert out.stats["cells"] > 0
+    monkeypatch.setattr(detection, "CONE_ROWS", 1)  # the couples' cones outgrow their rows again and again
+    again = render(scene, CENTRES)
+    assert again.stats["arcs"] == out.stats["arcs"]
+    np.testing.assert_array_equal(again.combined, out.combined)
     monkeypatch.setattr(regions, "CELL_ARCS", 10 ** 9)
     monkeypatch.setattr(silhouettes, "ARC_CHUNK", 1)
     whole = render(scene, CENTRES)

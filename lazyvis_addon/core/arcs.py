@@ -84,11 +84,12 @@ def jump_at(rows, c, r, edge_start, third, triangle, cut_light, face_normal, fac
 
 
 @njit(cache=True, nogil=True, inline="always")
-def arc_test(rows, c, cones, cone_valid, r, total, cut, edge_start, edge_end, out_start, out_end, out_normal,
-             out_enter, out_leave, out_jump, m):
+def arc_test(rows, c, cones, cone_valid, cone_row, r, total, cut, edge_start, edge_end, out_start, out_end,
+             out_normal, out_enter, out_leave, out_jump, m):
     """Whether edge record ``r`` (start, end (E, 3)), whose ``jump_at`` is ``total`` (not 0), is an arc
-    crossing the light of couple ``c`` (``rows``: the couple table; cones (Nc, V, 3) inward unit normals of
-    the planes through the receiver and its clipped light's edges, cone_valid (Nc, V)); if so it is written
+    crossing the light of couple ``c`` (``rows``: the couple table; cones[cone_row] (V, 3) of (N, V, 3) the
+    inward unit normals of the planes through the receiver and its clipped light's edges,
+    cone_valid[cone_row] (V,)); if so it is written
     to row ``m`` of the outputs. ``cut``: the record is a cut segment of this couple's light, which lies in
     the light's plane by construction (no front part to clip: it bounds the front part of its triangle
     where that triangle pierces the light).
@@ -131,7 +132,7 @@ def arc_test(rows, c, cones, cone_valid, r, total, cut, edge_start, edge_end, ou
     inside = False
     if (front_a or front_b) and not beyond:
         n0, n1, n2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
-        enter, leave, inside = _cone_range(a0, a1, a2, b0, b1, b2, n0, n1, n2, cones, cone_valid, c,
+        enter, leave, inside = _cone_range(a0, a1, a2, b0, b1, b2, n0, n1, n2, cones, cone_valid, cone_row,
                                            -rows[c, COUPLE_TOWARD], -rows[c, COUPLE_TOWARD + 1],
                                            -rows[c, COUPLE_TOWARD + 2])
         if inside:
@@ -263,27 +264,28 @@ DEGENERATE_EDGE = 1e-10
 def _cone_planes(directions, count, planes, valid):
     """``cone_plane_row`` for every polygon."""
     for n in range(directions.shape[0]):
-        cone_plane_row(directions, count, planes, valid, n)
+        cone_plane_row(directions, n, count[n], planes, valid, n)
 
 
 @njit(cache=True, nogil=True, inline="always")
-def cone_plane_row(directions, count, planes, valid, n):
-    """Polygon n's planes: the plane through vertex k and its successor (the last real vertex closes onto
-    vertex 0), turned to face the polygon's centre, normalised; valid where k is a real vertex and the
-    plane is not degenerate. Detection works them out for a couple when it first tests an arc there
-    (``cone_ready``): most couples have no candidate edge, and a disk light's 64 planes cost more than
-    their tests."""
+def cone_plane_row(directions, d, count, planes, valid, n):
+    """The planes of polygon ``directions[d]`` (of ``count`` real vertices), written to planes[n] and
+    valid[n]: the plane through vertex k and its successor (the last real vertex closes onto vertex 0),
+    turned to face the polygon's centre, normalised; valid where k is a real vertex and the
+    plane is not degenerate. Detection works them out for a couple when it first tests an arc there (a row of
+    ``detection._detect``'s cones): most couples have no candidate edge, and a disk light's 64 planes cost
+    more than their tests."""
     width = directions.shape[1]
-    last = max(count[n] - 1, 0)
+    last = max(count - 1, 0)
     c0, c1, c2 = 0.0, 0.0, 0.0
     for k in range(width):
-        c0 += directions[n, k, 0]
-        c1 += directions[n, k, 1]
-        c2 += directions[n, k, 2]
+        c0 += directions[d, k, 0]
+        c1 += directions[d, k, 1]
+        c2 += directions[d, k, 2]
     for k in range(width):
         j = 0 if k == last or k + 1 == width else k + 1
-        a0, a1, a2 = directions[n, k, 0], directions[n, k, 1], directions[n, k, 2]
-        b0, b1, b2 = directions[n, j, 0], directions[n, j, 1], directions[n, j, 2]
+        a0, a1, a2 = directions[d, k, 0], directions[d, k, 1], directions[d, k, 2]
+        b0, b1, b2 = directions[d, j, 0], directions[d, j, 1], directions[d, j, 2]
         p0, p1, p2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
         if p0 * c0 + p1 * c1 + p2 * c2 < 0:
             p0, p1, p2 = -p0, -p1, -p2
@@ -295,4 +297,4 @@ def cone_plane_row(directions, count, planes, valid, n):
             planes[n, k, 0], planes[n, k, 1], planes[n, k, 2] = 0.0, 0.0, 0.0
         else:
             planes[n, k, 0], planes[n, k, 1], planes[n, k, 2] = p0 / length, p1 / length, p2 / length
-        valid[n, k] = k < count[n] and not degenerate
+        valid[n, k] = k < count and not degenerate

@@ -27,6 +27,9 @@ from numba import njit
 from .borrowed import borrowed
 from .arcs import COUPLE_WIDTH, SIGN_EPS, arc_test, cone_plane_row, couple_table, jump_at
 
+# Rows of couples' cones detection starts with (``detect_arcs``), doubled as they fill.
+CONE_ROWS = 4096
+
 # Columns of a hull table (``silhouettes.hull_table``), one row per receiver group or sub-group: the
 # bounding box of the receivers' box and their light, the light plane's normal towards the receivers and
 # its offset, the plane tolerance, the receivers' largest height above the light, four side planes of the
@@ -81,18 +84,28 @@ def detect_arcs(edges, leaf_size: int, hulls: np.ndarray, query_light: np.ndarra
               i64(unit_size), i64(member),
               couple_table(position, own_triangle, couples.light, couples.side, frames, reference, bound),
               f64(couples.uv), i64(couples.light), f64(couples.local), frames.tangent, frames.bitangent, frames.normal,
-              i64(couples.count), np.empty(couples.uv.shape[:2] + (3,)), np.empty(couples.uv.shape[:2] + (3,)),
-              np.empty(couples.uv.shape[:2], np.bool_), np.zeros(len(couples.uv), np.bool_))
+              i64(couples.count), np.empty((1,) + couples.uv.shape[1:2] + (3,)),
+              np.full(len(couples.uv), -1, np.int64))
+    # The cones of the couples an arc is tested at, in rows taken as they are first needed (most couples
+    # have none; a table of every couple's, 1.6 KB each for a disk light, was written sparsely, and the
+    # kernel zeroed the fresh pages: 5-8 % of a one-thread suzanne at 512 px under perf).
+    cone_rows = min(len(couples.uv), CONE_ROWS)
+    cones = np.empty((cone_rows,) + couples.uv.shape[1:2] + (3,))
+    cone_valid = np.empty((cone_rows,) + couples.uv.shape[1:2], np.bool_)
+    rows_used = np.zeros(1, np.int64)
     capacity = max(chunk_arcs, 1)
     done = 0
     while done < len(hulls):  # chunks of queries
-        out = _detect(*arrays, edges.n_leaves, leaf_size, done, capacity)
-        reached, count = out[7], out[8]
-        if reached == done:  # not even one query fitted
+        out = _detect(*arrays, cones, cone_valid, rows_used, edges.n_leaves, leaf_size, done, capacity)
+        reached, count, cones_full = out[7], out[8], out[11]
+        if cones_full:  # then the query where they filled again, with twice the rows
+            cones = np.concatenate([cones, np.empty_like(cones)])
+            cone_valid = np.concatenate([cone_valid, np.empty_like(cone_valid)])
+        elif reached == done:  # not even one query's arcs fitted
             capacity *= 4
-            continue
-        yield (done, reached), tuple(array[:count] for array in out[:7]), out[9], out[10]
-        done = reached
+        if reached > done:
+            yield (done, reached), tuple(array[:count] for array in out[:7]), out[9], out[10]
+            done = reached
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -182,12 +195,14 @@ def _may_be_silhouette(edge_start, face_normal, face_size, r, cut, hulls, q):
 def _detect(node_low, node_high, node_axis, node_spread, node_lights, lights_seen, record_low, record_high, record_light, edge_start, edge_end,
             third, triangle, face_normal, face_offset, face_size, part_of, hulls, query_light, query_unit, query_units,
             unit_hulls, unit_first, unit_size, member, couple_rows, light_uv, couple_light, couple_local, tangent,
-            bitangent, light_normal, light_count, light_dirs, cone, cone_valid, cone_ready, n_leaves, leaf_size,
-            q_start, capacity):
-    """One chunk of ``detect_arcs``' queries from ``q_start``. ``light_dirs``, ``cone``, ``cone_valid`` (Nc, V, 3),
-    (Nc, V, 3), (Nc, V) are filled for couple c where ``cone_ready[c]`` (set here, kept from chunk to chunk): the
-    light's vertices ``light_uv`` (Nc, V, 2) as directions from the receiver (``geometry._directions``' numbers)
-    and their cone."""
+            bitangent, light_normal, light_count, light_dirs, cone_row, cone, cone_valid, rows_used, n_leaves,
+            leaf_size, q_start, capacity):
+    """One chunk of ``detect_arcs``' queries from ``q_start``. Couple c's cone is row ``cone_row[c]`` (Nc,) int64
+    of ``cone`` (K, V, 3) and ``cone_valid`` (K, V), -1 until an arc is first tested there: then the next row
+    (``rows_used`` (1,) int64 counts them; kept from chunk to chunk) is filled from the light's vertices
+    ``light_uv`` (Nc, V, 2) as directions from the receiver (``geometry._directions``' numbers, in the scratch
+    row ``light_dirs`` (1, V, 3)). Returns the arcs' columns, the query reached, the arcs, tests and visits
+    counted, and whether the cones' rows ran out (then the query reached was not begun: again, with more)."""
     # Every array borrowed (``borrowed``): no reference counting in the loops below, 4.7x faster.
     node_low, node_high, node_axis = borrowed(node_low), borrowed(node_high), borrowed(node_axis)
     node_spread, node_lights, lights_seen = borrowed(node_spread), borrowed(node_lights), borrowed(lights_seen)
@@ -198,7 +213,8 @@ def _detect(node_low, node_high, node_axis, node_spread, node_lights, lights_see
     query_unit, query_units, unit_hulls = borrowed(query_unit), borrowed(query_units), borrowed(unit_hulls)
     unit_first, unit_size, member = borrowed(unit_first), borrowed(unit_size), borrowed(member)
     couple_rows, cone, cone_valid = borrowed(couple_rows), borrowed(cone), borrowed(cone_valid)
-    light_dirs, light_count, cone_ready = borrowed(light_dirs), borrowed(light_count), borrowed(cone_ready)
+    light_dirs, light_count, cone_row = borrowed(light_dirs), borrowed(light_count), borrowed(cone_row)
+    rows_used = borrowed(rows_used)
     light_uv, couple_light, couple_local = borrowed(light_uv), borrowed(couple_light), borrowed(couple_local)
     tangent, bitangent, light_normal = borrowed(tangent), borrowed(bitangent), borrowed(light_normal)
     out_couple = np.empty(capacity, np.int64)
@@ -256,26 +272,35 @@ def _detect(node_low, node_high, node_axis, node_spread, node_lights, lights_see
                     for j in range(unit_first[u], unit_first[u] + unit_size[u]):
                         if m == capacity:  # this query again, with a new buffer
                             return out_couple, out_start, out_end, out_normal, out_enter, out_leave, out_jump, q, \
-                                m_before, tests_before, visits_before
+                                m_before, tests_before, visits_before, False
                         c = member[j]
                         tests += 1
                         total = jump_at(couple_rows, c, r, edge_start, third, triangle, record_light, face_normal,
                                         face_offset, face_size, part_of)
-                        if total != 0.0 and not cone_ready[c]:
+                        if total == 0.0:
+                            continue
+                        row = cone_row[c]
+                        if row < 0:
+                            row = rows_used[0]
+                            if row == len(cone):  # this query again, with more rows
+                                return out_couple, out_start, out_end, out_normal, out_enter, out_leave, out_jump, \
+                                    q, m_before, tests_before, visits_before, True
                             l = couple_light[c]
                             u0, v0, h = couple_local[c, 0], couple_local[c, 1], couple_local[c, 2]
                             for k in range(light_uv.shape[1]):
                                 du, dv = light_uv[c, k, 0] - u0, light_uv[c, k, 1] - v0
                                 for d in range(3):
-                                    light_dirs[c, k, d] = du * tangent[l, d] + dv * bitangent[l, d] - \
+                                    light_dirs[0, k, d] = du * tangent[l, d] + dv * bitangent[l, d] - \
                                         h * light_normal[l, d]
-                            cone_plane_row(light_dirs, light_count, cone, cone_valid, c)
-                            cone_ready[c] = True
-                        if total != 0.0 and arc_test(couple_rows, c, cone, cone_valid, r, total, cut, edge_start,
-                                                     edge_end, w_start, w_end, w_normal, w_enter, w_leave, w_jump, m):
+                            cone_plane_row(light_dirs, 0, light_count[c], cone, cone_valid, row)
+                            cone_row[c] = row
+                            rows_used[0] = row + 1
+                        if arc_test(couple_rows, c, cone, cone_valid, row, r, total, cut, edge_start, edge_end, w_start,
+                                    w_end, w_normal, w_enter, w_leave, w_jump, m):
                             out_couple[m] = c
                             m += 1
-    return out_couple, out_start, out_end, out_normal, out_enter, out_leave, out_jump, len(hulls), m, tests, visits
+    return out_couple, out_start, out_end, out_normal, out_enter, out_leave, out_jump, len(hulls), m, tests, visits, \
+        False
 
 
 def compile_detection() -> None:
@@ -287,4 +312,5 @@ def compile_detection() -> None:
     _detect(f, f, f, one, bits, bits, f, f, i, f, f, faces, np.zeros((1, 2), np.int64), faces, np.zeros((1, 2)),
             np.zeros((1, 2)), np.full(1, -1, np.int64), hull, i, i, i, hull, i, i, i,
             np.full((1, COUPLE_WIDTH), -1.0), np.zeros((1, 3, 2)), i, f, f, f, f, i, np.zeros((1, 3, 3)),
-            np.zeros((1, 3, 3)), np.zeros((1, 3), np.bool_), np.zeros(1, np.bool_), 1, 32, 0, 16)
+            np.full(1, -1, np.int64), np.zeros((1, 3, 3)), np.zeros((1, 3), np.bool_), np.zeros(1, np.int64), 1, 32, 0,
+            16)
