@@ -27,8 +27,10 @@ from numba import njit
 from .borrowed import borrowed
 from .arcs import COUPLE_WIDTH, SIGN_EPS, arc_test, cone_plane_row, couple_table, jump_at
 
-# Rows of couples' cones detection starts with (``detect_arcs``), doubled as they fill.
-CONE_ROWS = 4096
+# Rows of couples' cones detection starts with (``detect_arcs``), doubled as they fill; None: one per couple
+# of the batch, which never fills (about half the couples get one: 57 % on suzanne, 55 % on the tree, 52 % on
+# the boxes at 512 px; starting from 4,096 rows, the doubling copies were 2 % of suzanne's time).
+CONE_ROWS: int | None = None
 
 # Columns of a hull table (``silhouettes.hull_table``), one row per receiver group or sub-group: the
 # bounding box of the receivers' box and their light, the light plane's normal towards the receivers and
@@ -86,10 +88,10 @@ def detect_arcs(edges, leaf_size: int, hulls: np.ndarray, query_light: np.ndarra
               f64(couples.uv), i64(couples.light), f64(couples.local), frames.tangent, frames.bitangent, frames.normal,
               i64(couples.count), np.empty((1,) + couples.uv.shape[1:2] + (3,)),
               np.full(len(couples.uv), -1, np.int64))
-    # The cones of the couples an arc is tested at, in rows taken as they are first needed (most couples
-    # have none; a table of every couple's, 1.6 KB each for a disk light, was written sparsely, and the
-    # kernel zeroed the fresh pages: 5-8 % of a one-thread suzanne at 512 px under perf).
-    cone_rows = min(len(couples.uv), CONE_ROWS)
+    # The cones of the couples an arc is tested at, in rows taken in order as they are first needed: the
+    # memory touched is the rows used. A table by couple (1.6 KB each for a disk light) was written sparsely,
+    # and the kernel zeroed every page touched (5-8 % of a one-thread suzanne at 512 px under perf).
+    cone_rows = max(1, len(couples.uv) if CONE_ROWS is None else min(len(couples.uv), CONE_ROWS))
     cones = np.empty((cone_rows,) + couples.uv.shape[1:2] + (3,))
     cone_valid = np.empty((cone_rows,) + couples.uv.shape[1:2], np.bool_)
     rows_used = np.zeros(1, np.int64)
