@@ -331,23 +331,27 @@ def _glibc_heap_top_after_churn() -> int | None:
     if not sys.platform.startswith("linux"):
         return None
     libc = ctypes.CDLL(None)
-    if not hasattr(libc, "gnu_get_libc_version") or not hasattr(libc, "mallinfo2"):
+    if not hasattr(libc, "gnu_get_libc_version"):
         return None
+    # mallinfo2 since glibc 2.33; before it mallinfo, whose int fields hold these sizes too.
+    modern = hasattr(libc, "mallinfo2")
+    field = ctypes.c_size_t if modern else ctypes.c_int
 
-    class Mallinfo2(ctypes.Structure):
-        _fields_ = [(name, ctypes.c_size_t) for name in ("arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks",
-                                                          "fsmblks", "uordblks", "fordblks", "keepcost")]
+    class Mallinfo(ctypes.Structure):
+        _fields_ = [(name, field) for name in ("arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks", "fsmblks",
+                                               "uordblks", "fordblks", "keepcost")]
 
-    libc.mallinfo2.restype = Mallinfo2
+    mallinfo = libc.mallinfo2 if modern else libc.mallinfo
+    mallinfo.restype = Mallinfo
     blocks = [np.ones(30 * 2 ** 20 // 8) for _ in range(8)]
     del blocks
-    return libc.mallinfo2().keepcost
+    return mallinfo().keepcost
 
 
 def test_a_render_keeps_the_heap_it_frees_and_gives_it_back_at_its_end():
     """While a render runs, glibc keeps freed heap memory for the next batch instead of giving it back
-    (``heap.retained_heap``: fresh pages per batch cost a one-thread suzanne at 512 px 12 % in the kernel's
-    page faults); afterwards, also after a cancel and after overlapping renders, it keeps no more than its
+    (``heap.retained_heap``: with fresh pages each batch, perf put 21-29 % of a one-thread suzanne at 512 px
+    in the kernel); afterwards, also after a cancel and after overlapping renders, it keeps no more than its
     own adjustment would (IDLE_RETAINED_BYTES). Where malloc is not glibc's the context does nothing, which
     the first branch checks."""
     heap_module = importlib.import_module("lazyvis_addon.core.heap")

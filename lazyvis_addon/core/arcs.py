@@ -273,8 +273,8 @@ def cone_plane_row(directions, d, count, planes, valid, n):
     valid[n]: the plane through vertex k and its successor (the last real vertex closes onto vertex 0),
     turned to face the polygon's centre, normalised; valid where k is a real vertex and the
     plane is not degenerate. Detection works them out for a couple when it first tests an arc there (a row of
-    ``detection._detect``'s cones): most couples have no candidate edge, and a disk light's 64 planes cost
-    more than their tests."""
+    ``detection._detect``'s cones): about half the couples have no candidate edge (at 512 px: 43-48 % on
+    suzanne, the tree and the boxes), and a disk light's 64 planes cost more than their tests."""
     width = directions.shape[1]
     last = max(count - 1, 0)
     c0, c1, c2 = 0.0, 0.0, 0.0
