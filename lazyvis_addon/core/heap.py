@@ -6,8 +6,8 @@ when they are freed (``munmap``, or trimming the heap's top past M_TRIM_THRESHOL
 arrays are fresh pages that the kernel must zero on first touch: ``perf`` put 21-29 % of a one-thread render
 of suzanne at 512 px in the kernel's page-fault and page-zeroing paths. While a render runs, blocks up to
 glibc's largest mmap threshold (32 MiB) come from the heap and up to ``RETAINED_BYTES`` of free heap stay
-mapped for the next batch; when the last overlapping render ends, the free memory goes back to the system
-(``malloc_trim``) and the heap keeps what glibc's own adjustment would (IDLE_RETAINED_BYTES). Measured in
+mapped for the next batch; when the last overlapping render ends, the heap keeps no more free memory at its
+top than glibc's own adjustment would (IDLE_RETAINED_BYTES, from its next free on). Measured in
 fresh bpy processes on this 2-core machine, with and without it alternating: suzanne at 512 px on one thread
 12.9-13.8 -> 10.9-11.6 s (page faults per render 94-259 k -> 35-43 k).
 
@@ -45,7 +45,7 @@ _libc = None
 
 
 def _glibc():
-    """The process's glibc (its ``mallopt`` and ``malloc_trim``), or None where malloc is not glibc's."""
+    """The process's glibc (its ``mallopt``), or None where malloc is not glibc's."""
     global _libc
     if _libc is None:
         _libc = False
@@ -54,7 +54,6 @@ def _glibc():
                 libc = ctypes.CDLL(None)
                 libc.gnu_get_libc_version  # glibc only (musl has mallopt as a stub)
                 libc.mallopt.argtypes, libc.mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
-                libc.malloc_trim.argtypes, libc.malloc_trim.restype = (ctypes.c_size_t,), ctypes.c_int
                 _libc = libc
             except (OSError, AttributeError):
                 pass
@@ -66,8 +65,8 @@ def retained_heap(memory_budget_mb: float | None = None) -> Iterator[bool]:
     """A context in which freed C-heap memory stays mapped for the next allocation (see the module
     docstring), at most RETAINED_BUDGET_SHARE of ``memory_budget_mb`` (MB; None: RETAINED_BYTES); yields
     whether glibc's malloc was found and set. Renders that overlap share it: the first
-    to begin sets it, the last to end gives the free memory back and lowers the heap's free top to what
-    glibc's own adjustment reaches (which any ``mallopt`` turns off for good)."""
+    to begin sets it, the last to end lowers the heap's free top to what glibc's own adjustment reaches
+    (which any ``mallopt`` turns off for good)."""
     global _users
     libc = _glibc()
     with _lock:
@@ -83,8 +82,10 @@ def retained_heap(memory_budget_mb: float | None = None) -> Iterator[bool]:
         with _lock:
             _users -= 1
             if libc is not None and _users == 0:
+                # No ``malloc_trim`` here: it gave back the pages the next render needs again (the viewport's
+                # steps, one after another: boxes at 64 px 20 k page faults a render instead of 3.5 k without
+                # this context, 8 % slower); glibc trims the top past the lowered threshold at its next free.
                 libc.mallopt(M_TRIM_THRESHOLD, IDLE_RETAINED_BYTES)
-                libc.malloc_trim(0)
 
 
 def heap_retained() -> bool:
