@@ -2,7 +2,7 @@
 
 ``silhouettes.silhouette_pieces`` sets up one query per (receiver group, light, side): the box around the
 group and the light, the light's plane and the receivers' height above it, four side planes of the hull
-of the group's box and the light's bounding rectangle (``silhouettes.hull_table``), and sub-groups of a
+of the group's box and the light's bounding rectangle (``hull_table``), and sub-groups of a
 few receivers with boxes of their own. Each query walks the edge tree (``edge_tree.MeshEdges``: an
 implicit binary tree over leaves of records in Morton order) depth first:
 
@@ -26,19 +26,109 @@ from numba import njit
 
 from .borrowed import borrowed
 from .arcs import COUPLE_WIDTH, SIGN_EPS, arc_test, cone_plane_row, couple_table, jump_at
+from .geometry import PLANE_EPS, LightFrames
 
 # Rows of couples' cones detection starts with (``detect_arcs``), doubled as they fill; None: one per couple
 # of the batch, which never fills (about half the couples get one: 57 % on suzanne, 55 % on the tree, 52 % on
 # the boxes at 512 px; starting from 4,096 rows, the doubling copies were 2 % of suzanne's time).
 CONE_ROWS: int | None = None
 
-# Columns of a hull table (``silhouettes.hull_table``), one row per receiver group or sub-group: the
+# Columns of a hull table (``hull_table``), one row per receiver group or sub-group: the
 # bounding box of the receivers' box and their light, the light plane's normal towards the receivers and
 # its offset, the plane tolerance, the receivers' largest height above the light, four side planes of the
 # hull (normals, offsets, validity 1 / 0) and the receivers' own box.
 HULL_LOW, HULL_HIGH, HULL_TOWARD, HULL_BASE, HULL_EPS, HULL_HEIGHT = 0, 3, 6, 9, 10, 11
 HULL_SIDE_NORMAL, HULL_SIDE_OFFSET, HULL_SIDE_VALID, HULL_BOX_LOW, HULL_BOX_HIGH = 12, 24, 28, 32, 35
 HULL_WIDTH = 38
+
+
+def hull_table(frames: LightFrames, box_low: np.ndarray, box_high: np.ndarray, light: np.ndarray, side: np.ndarray,
+               height: np.ndarray, uv_low: np.ndarray | None = None, uv_high: np.ndarray | None = None
+               ) -> np.ndarray:
+    """The tests of the hull of receiver boxes and their lights, packed in rows for detection
+    (``detection.HULL_*`` name the columns), (N, detection.HULL_WIDTH) float64.
+
+    Parameters
+    ----------
+    box_low, box_high : (N, 3)    boxes around receivers.
+    light : (N,) int64            the light they see.
+    side : (N,) float64           +1 / -1: the side of the light the receivers are on.
+    height : (N,) float64         the receivers' largest height above the light.
+    uv_low, uv_high : (N, 2) float64 or None   a (u, v) rectangle holding the receivers' clipped lights
+                                  (tighter than the light's own: a sun's, a lamp's plane, a horizon); None:
+                                  the light's bounding rectangle.
+
+    An edge that crosses the light from a point of a box lies in the bounding box of the box and the
+    light, inside the hull's four side planes, and has a point in front of the light's plane and below
+    the receiver: what the tests keep. Each side plane contains one edge of the light's (u, v) bounding
+    rectangle and touches the box, with box and light on its negative side (n . y <= offset), so anything
+    beyond it meets no segment from the box to the light.
+    """
+    table = np.empty((len(light), HULL_WIDTH))
+    if uv_low is None:
+        real = np.arange(frames.uv.shape[1])[None, :] < frames.vertex_count[:, None]
+        uv_low = np.stack([np.where(real, frames.uv[..., k], np.inf).min(axis=1) for k in range(2)], axis=1)[light]
+        uv_high = np.stack([np.where(real, frames.uv[..., k], -np.inf).max(axis=1) for k in range(2)], axis=1)[light]
+    _hull_rows(np.ascontiguousarray(box_low, np.float64), np.ascontiguousarray(box_high, np.float64),
+               np.ascontiguousarray(light, np.int64), np.ascontiguousarray(side, np.float64),
+               np.ascontiguousarray(height, np.float64), frames.origin, frames.tangent, frames.bitangent, frames.normal,
+               np.ascontiguousarray(uv_low, np.float64), np.ascontiguousarray(uv_high, np.float64), table)
+    return table
+
+
+@njit(cache=True, nogil=True)
+def _hull_rows(box_low, box_high, light, side, height, origin, tangent, bitangent, normal, uv_low, uv_high, table):
+    corners = np.empty((8, 3))
+    for n in range(len(light)):
+        l = light[n]
+        row = table[n]
+        u0, u1, v0, v1 = uv_low[n, 0], uv_high[n, 0], uv_low[n, 1], uv_high[n, 1]
+        for k in range(3):
+            low, high = box_low[n, k], box_high[n, k]
+            for corner in range(4):  # the (u, v) rectangle's corners
+                u = u1 if corner & 1 else u0
+                v = v1 if corner & 2 else v0
+                point = origin[l, k] + u * tangent[l, k] + v * bitangent[l, k]
+                low, high = min(low, point), max(high, point)
+            row[HULL_LOW + k], row[HULL_HIGH + k] = low, high
+            row[HULL_TOWARD + k] = side[n] * normal[l, k]
+            row[HULL_BOX_LOW + k], row[HULL_BOX_HIGH + k] = box_low[n, k], box_high[n, k]
+        row[HULL_BASE] = row[HULL_TOWARD] * origin[l, 0] + row[HULL_TOWARD + 1] * origin[l, 1] + \
+            row[HULL_TOWARD + 2] * origin[l, 2]
+        largest_high, largest_low = 0.0, 0.0
+        for k in range(3):
+            largest_high, largest_low = max(largest_high, abs(row[HULL_HIGH + k])), max(largest_low, abs(row[HULL_LOW + k]))
+        row[HULL_EPS] = PLANE_EPS * (largest_high + largest_low)
+        row[HULL_HEIGHT] = height[n]
+        for i in range(8):
+            for k in range(3):
+                corners[i, k] = box_high[n, k] if (i >> k) & 1 else box_low[n, k]
+        for s in range(4):  # the rectangle's edges u = u0, u = u1, v = v0, v = v1: a point and the outward normal
+            axis_value = (u0, u1, v0, v1)[s]
+            sign = -1.0 if s % 2 == 0 else 1.0
+            valid = True
+            tilt = np.inf
+            for i in range(8):
+                alpha, beta = 0.0, 0.0
+                for k in range(3):
+                    point = origin[l, k] + axis_value * (tangent[l, k] if s < 2 else bitangent[l, k])
+                    out = sign * (tangent[l, k] if s < 2 else bitangent[l, k])
+                    alpha += (corners[i, k] - point) * out
+                    beta += (corners[i, k] - point) * side[n] * normal[l, k]
+                if not beta > 0:
+                    valid = False
+                    break
+                tilt = min(tilt, -alpha / beta)
+            if not valid:
+                tilt = 0.0
+            offset = 0.0
+            for k in range(3):
+                point = origin[l, k] + axis_value * (tangent[l, k] if s < 2 else bitangent[l, k])
+                plane = sign * (tangent[l, k] if s < 2 else bitangent[l, k]) + tilt * side[n] * normal[l, k]
+                row[HULL_SIDE_NORMAL + 3 * s + k] = plane
+                offset += plane * point
+            row[HULL_SIDE_OFFSET + s] = offset
+            row[HULL_SIDE_VALID + s] = 1.0 if valid else 0.0
 
 
 def detect_arcs(edges, leaf_size: int, hulls: np.ndarray, query_light: np.ndarray, units: tuple, member: np.ndarray,
@@ -51,7 +141,7 @@ def detect_arcs(edges, leaf_size: int, hulls: np.ndarray, query_light: np.ndarra
     Parameters (Q queries of U sub-groups of Nc couples)
     ----------
     edges : ``edge_tree.MeshEdges``; leaf_size : records per leaf.
-    hulls : (Q, HULL_WIDTH) float64       each query's receiver group and light (``silhouettes.hull_table``).
+    hulls : (Q, HULL_WIDTH) float64       each query's receiver group and light (``hull_table``).
     query_light : (Q,) int64              the light (cut segments of other lights are skipped).
     units : the sub-groups, a tuple of
         query_unit, query_units : (Q,) int64   each query's sub-groups query_unit .. + query_units - 1;
@@ -305,8 +395,203 @@ def _detect(node_low, node_high, node_axis, node_spread, node_lights, lights_see
         False
 
 
-def compile_detection() -> None:
-    """Compile ``_detect`` (or load it from Numba's cache) on a one-query input."""
+# Relative slack of the segment test's planes (``_segment_may_cross``): looser than the arc test's own
+# tolerances, so that it keeps whatever the arc test could accept.
+SEGMENT_SLACK = 1e-9
+
+
+def segment_may_cross(edges, leaf_size: int, hulls: np.ndarray, query_light: np.ndarray, near: np.ndarray,
+                      far: np.ndarray, polygon: np.ndarray, count: np.ndarray, excluded: np.ndarray,
+                      skipped: np.ndarray) -> np.ndarray:
+    """Whether any edge may be an arc crossing light polygon q as seen from some point of the segment
+    near[q] .. far[q]: (Q,) bool, False only where no point of the segment sees an arc cross the polygon.
+
+    The Shadow Terminator Geometry Offset moves a couple's origin along a segment (``terminator``); where
+    no edge's arc crosses the light from any point of it, the depth complexity is the same for every
+    origin of the segment and every direction to the light, and the strips the light would be cut into
+    all see what one origin sees.
+
+    Parameters (Q segments)
+    ----------
+    edges : ``edge_tree.MeshEdges``; leaf_size : records per leaf.
+    hulls : (Q, HULL_WIDTH) float64   ``hull_table`` of each segment's box and its polygon's (u, v) rectangle.
+    query_light : (Q,) int64          the light.
+    near, far : (Q, 3) float64        the segment's ends, both strictly in front of the light's plane.
+    polygon : (Q, V, 3) float64       the light's convex polygon as seen from there (world points, ``count``
+                                      (Q,) int64 real ones, in order; fewer than 3: nothing crosses).
+    excluded : (Q,) int64             the emitter hull whose faces block none of the light (-1 for none).
+    skipped : (Q,) int64              a triangle whose edges are left out (-1 for none): the receiver's own,
+                                      where the segment and the polygon lie on one side of its plane, so that
+                                      no segment between them meets its edges. Every other face counts.
+    """
+    def f64(a):
+        return np.ascontiguousarray(a, np.float64)
+
+    def i64(a):
+        return np.ascontiguousarray(a, np.int64)
+
+    out = np.zeros(len(hulls), np.bool_)
+    if len(hulls) == 0:
+        return out
+    _segment_detect(f64(edges.node_low), f64(edges.node_high), f64(edges.node_axis), f64(edges.node_spread),
+                    np.ascontiguousarray(edges.node_lights, np.uint64),
+                    np.ascontiguousarray(edges.lights_seen, np.uint64), f64(edges.low), f64(edges.high),
+                    i64(edges.light), f64(edges.start), f64(edges.end), i64(edges.triangle), f64(edges.face_normal),
+                    f64(edges.face_offset), f64(edges.face_size),
+                    i64(edges.part_of if edges.part_of is not None and len(edges.part_of) else np.full(1, -1)),
+                    f64(hulls), i64(query_light), f64(near), f64(far), f64(polygon), i64(count), i64(excluded),
+                    i64(skipped), edges.n_leaves, leaf_size, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _segment_detect(node_low, node_high, node_axis, node_spread, node_lights, lights_seen, record_low, record_high,
+                    record_light, edge_start, edge_end, triangle, face_normal, face_offset, face_size, part_of, hulls,
+                    query_light, near, far, polygon, count, excluded, skipped, n_leaves, leaf_size, out):
+    """``segment_may_cross``: per segment the walk of ``_detect`` (the segment's box as the receivers' box),
+    each record left tested by ``_segment_may_cross`` until one may cross."""
+    node_low, node_high, node_axis = borrowed(node_low), borrowed(node_high), borrowed(node_axis)
+    node_spread, node_lights, lights_seen = borrowed(node_spread), borrowed(node_lights), borrowed(lights_seen)
+    record_low, record_high, record_light = borrowed(record_low), borrowed(record_high), borrowed(record_light)
+    edge_start, edge_end, triangle = borrowed(edge_start), borrowed(edge_end), borrowed(triangle)
+    face_normal, face_offset, face_size = borrowed(face_normal), borrowed(face_offset), borrowed(face_size)
+    part_of, hulls, query_light = borrowed(part_of), borrowed(hulls), borrowed(query_light)
+    near, far, polygon, count, excluded = borrowed(near), borrowed(far), borrowed(polygon), borrowed(count), \
+        borrowed(excluded)
+    skipped = borrowed(skipped)
+    n_records = len(record_light)
+    stack = np.empty(128, np.int64)
+    for q in range(len(hulls)):
+        bit = np.uint64(1) << np.uint64(query_light[q]) if query_light[q] < 64 else np.uint64(0)
+        depth = 1 if count[q] >= 3 else 0  # less than a triangle: nothing to cross
+        stack[0] = 0
+        while depth > 0 and not out[q]:
+            depth -= 1
+            node = stack[depth]
+            if bit and not node_lights[node] & bit:
+                continue
+            if not _box_passes(hulls, q, node_low, node_high, node):
+                continue
+            if _one_sided(node_axis, node_spread, node_low, node_high, node, hulls, q):
+                continue
+            if node < n_leaves - 1:
+                stack[depth] = 2 * node + 2
+                stack[depth + 1] = 2 * node + 1
+                depth += 2
+                continue
+            leaf_first = (node - (n_leaves - 1)) * leaf_size
+            for r in range(leaf_first, min(leaf_first + leaf_size, n_records)):
+                cut = record_light[r] >= 0
+                if cut and record_light[r] != query_light[q]:
+                    continue
+                if bit and not lights_seen[r] & bit:
+                    continue
+                if not _box_passes(hulls, q, record_low, record_high, r):
+                    continue
+                if not _may_be_silhouette(edge_start, face_normal, face_size, r, cut, hulls, q):
+                    continue
+                if cut or _segment_may_cross(r, q, edge_start, edge_end, triangle, face_normal, face_offset,
+                                             face_size, part_of, hulls, near, far, polygon, count, excluded,
+                                             skipped):
+                    out[q] = True
+                    break
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _segment_may_cross(r, q, edge_start, edge_end, triangle, face_normal, face_offset, face_size, part_of, hulls,
+                       near, far, polygon, count, excluded, skipped):
+    """False only where edge record r is an arc crossing polygon q from no origin x on the segment
+    near[q] .. far[q]. Two necessary conditions, each tested over the whole segment:
+
+    - its jump (``arcs.jump_at``) is not 0 somewhere: each face's plane value at x is linear along the
+      segment, so a face whose value keeps one sign beyond the sign tolerance at both ends keeps it between
+      them; the record is rejected only where every face does and their signs cancel;
+    - its part in front of the light's plane meets the hull of the segment and the polygon, the union of
+      the light's cones from the segment's points: clipped by the hull's face through each polygon edge
+      (the plane through the edge and whichever end leaves the other end inside), it keeps some length.
+    An edge of triangle ``skipped[q]`` is rejected outright.
+    """
+    for f in range(triangle.shape[1]):
+        if triangle[r, f] == skipped[q] and skipped[q] >= 0:
+            return False
+    x0, x1, x2 = near[q, 0], near[q, 1], near[q, 2]
+    y0, y1, y2 = far[q, 0], far[q, 1], far[q, 2]
+    reach = max(max(abs(edge_start[r, 0] - x0), abs(edge_start[r, 1] - x1), abs(edge_start[r, 2] - x2)),
+                max(abs(edge_start[r, 0] - y0), abs(edge_start[r, 1] - y1), abs(edge_start[r, 2] - y2)))
+    total = 0.0
+    unsure = False
+    for f in range(face_normal.shape[1]):
+        if excluded[q] >= 0 and triangle[r, f] >= 0 and part_of[triangle[r, f]] == excluded[q]:
+            continue
+        n0, n1, n2 = face_normal[r, f, 0], face_normal[r, f, 1], face_normal[r, f, 2]
+        at_near = face_offset[r, f] - (n0 * x0 + n1 * x1 + n2 * x2)
+        at_far = face_offset[r, f] - (n0 * y0 + n1 * y1 + n2 * y2)
+        tolerance = SIGN_EPS * face_size[r, f] * reach
+        if abs(at_near) > tolerance and abs(at_far) > tolerance and (at_near > 0) == (at_far > 0):
+            total += 1.0 if at_near > 0 else -1.0
+        else:
+            unsure = True
+    if not unsure and total == 0.0:
+        return False
+    # The part in front of the light's plane (the arc test's, with a zero tolerance: a longer part).
+    a0, a1, a2 = edge_start[r, 0], edge_start[r, 1], edge_start[r, 2]
+    b0, b1, b2 = edge_end[r, 0], edge_end[r, 1], edge_end[r, 2]
+    height_a, height_b = -hulls[q, HULL_BASE], -hulls[q, HULL_BASE]
+    for k in range(3):
+        height_a += edge_start[r, k] * hulls[q, HULL_TOWARD + k]
+        height_b += edge_end[r, k] * hulls[q, HULL_TOWARD + k]
+    if not (height_a > 0 or height_b > 0):
+        return False
+    low, high = 0.0, 1.0
+    if not height_a > 0:
+        low = height_a / (height_a - height_b)
+    elif not height_b > 0:
+        high = height_a / (height_a - height_b)
+    corners = count[q]
+    c0, c1, c2 = 0.0, 0.0, 0.0
+    for k in range(corners):
+        c0 += polygon[q, k, 0]
+        c1 += polygon[q, k, 1]
+        c2 += polygon[q, k, 2]
+    c0, c1, c2 = c0 / corners, c1 / corners, c2 / corners
+    for k in range(corners):
+        j = k + 1 if k + 1 < corners else 0
+        # The plane through the edge and the near end, turned to the polygon's centre; the far end's if the
+        # near end's leaves the far end outside.
+        for apex in range(2):
+            o0, o1, o2 = (x0, x1, x2) if apex == 0 else (y0, y1, y2)
+            p0, p1, p2 = polygon[q, k, 0] - o0, polygon[q, k, 1] - o1, polygon[q, k, 2] - o2
+            s0, s1, s2 = polygon[q, j, 0] - o0, polygon[q, j, 1] - o1, polygon[q, j, 2] - o2
+            m0, m1, m2 = p1 * s2 - p2 * s1, p2 * s0 - p0 * s2, p0 * s1 - p1 * s0
+            if m0 * (c0 - o0) + m1 * (c1 - o1) + m2 * (c2 - o2) < 0:
+                m0, m1, m2 = -m0, -m1, -m2
+            if apex == 1:
+                break
+            if m0 * (y0 - x0) + m1 * (y1 - x1) + m2 * (y2 - x2) >= 0:
+                break
+        length = np.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
+        if not length > 0:
+            continue  # a repeated vertex: its neighbours' planes bound the polygon
+        m0, m1, m2 = m0 / length, m1 / length, m2 / length
+        d_a = np.sqrt((a0 - o0) ** 2 + (a1 - o1) ** 2 + (a2 - o2) ** 2)
+        d_b = np.sqrt((b0 - o0) ** 2 + (b1 - o1) ** 2 + (b2 - o2) ** 2)
+        slack = SEGMENT_SLACK * (d_a + d_b)
+        value_a = m0 * (a0 - o0) + m1 * (a1 - o1) + m2 * (a2 - o2) + slack
+        value_b = m0 * (b0 - o0) + m1 * (b1 - o1) + m2 * (b2 - o2) + slack
+        if value_a < 0 and value_b < 0:
+            return False
+        if value_a < 0:
+            low = max(low, value_a / (value_a - value_b))
+        elif value_b < 0:
+            high = min(high, value_a / (value_a - value_b))
+        if low > high:
+            return False
+    return True
+
+
+def compile_detection() -> tuple:
+    """Compile ``_detect`` and ``_segment_detect`` (or load them from Numba's cache) on one-query inputs;
+    returns them."""
     f, i, one = np.zeros((1, 3)), np.zeros(1, np.int64), np.zeros(1)
     faces = np.zeros((1, 2, 3))
     hull = np.zeros((1, HULL_WIDTH))
@@ -316,3 +601,7 @@ def compile_detection() -> None:
             np.full((1, COUPLE_WIDTH), -1.0), np.zeros((1, 3, 2)), i, f, f, f, f, i, np.zeros((1, 3, 3)),
             np.full(1, -1, np.int64), np.zeros((1, 3, 3)), np.zeros((1, 3), np.bool_), np.zeros(1, np.int64), 1, 32, 0,
             16)
+    _segment_detect(f, f, f, one, bits, bits, f, f, i, f, f, np.zeros((1, 2), np.int64), faces, np.zeros((1, 2)),
+                    np.zeros((1, 2)), np.full(1, -1, np.int64), hull, i, f, f, np.zeros((1, 3, 3)), np.full(1, 3, np.int64),
+                    np.full(1, -1, np.int64), np.full(1, -1, np.int64), 1, 32, np.zeros(1, np.bool_))
+    return _detect, _segment_detect

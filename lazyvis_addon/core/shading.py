@@ -163,7 +163,7 @@ def _shade_silhouettes(part: SurfacePoints, bsdf: SurfaceBsdf, pixel_global: np.
             couples, couple_pixel = couples.take(kept), couple_pixel[kept]
         # Couples seen from lifted origins (Shadow Terminator Geometry Offset) come as strips of their
         # lights, couples of their own: their terms add up per pixel like any lights'.
-        couples, couple_pixel, origin_shift = terminator_couples(part, frames, couples, couple_pixel, lights)
+        couples, couple_pixel, origin_shift = terminator_couples(part, frames, couples, couple_pixel, lights, edges)
         found = dict.fromkeys(SILHOUETTE_COUNTERS + ("max_arcs_per_couple",), 0)
         visible = np.zeros(len(couple_pixel), bool)
         weights = np.zeros((len(couple_pixel), 3))

@@ -39,17 +39,15 @@ import dataclasses
 import numpy as np
 from numba import njit
 
-from . import arrangement as arrangement_module, detection as detection_module
+from . import arrangement as arrangement_module
 from .arcs import Arcs, _cone_planes, _sort_by_couple
 from .blockers import _union_find
 from .arrangement import compile_arrangement, jumps_between, visible_fans
 from .emitters import compile_emitters
 from .facing import compile_facing
-from .detection import (HULL_BASE, HULL_BOX_HIGH, HULL_BOX_LOW, HULL_EPS, HULL_HEIGHT, HULL_HIGH, HULL_LOW,
-                        HULL_SIDE_NORMAL, HULL_SIDE_OFFSET, HULL_SIDE_VALID, HULL_TOWARD, HULL_WIDTH, compile_detection,
-                        detect_arcs)
+from .detection import HULL_WIDTH, _hull_rows, compile_detection, detect_arcs, hull_table
 from .edge_tree import LEAF_EDGES, MeshEdges, _morton, compile_edge_tree
-from .geometry import (_REFERENCE_WEIGHTS, PLANE_EPS, LightFrames, ReceiverLight, _reference_points,
+from .geometry import (_REFERENCE_WEIGHTS, LightFrames, ReceiverLight, _reference_points,
                        compile_geometry, polygon_bounds, reference_points, trim)
 from .ggx import compile_ggx
 from .illumination import compile_illumination
@@ -73,99 +71,6 @@ SUB_POINTS = 1
 ARC_CHUNK = 1 << 16
 # Hits a reference depth ray may count before it gives up (the scene is then assumed solid there).
 DEPTH_ROUNDS = 64
-
-
-# ------------------------------------------------------------------------------------------------------
-# Detection: receiver groups against the edge tree
-# ------------------------------------------------------------------------------------------------------
-
-def hull_table(frames: LightFrames, box_low: np.ndarray, box_high: np.ndarray, light: np.ndarray, side: np.ndarray,
-               height: np.ndarray, uv_low: np.ndarray | None = None, uv_high: np.ndarray | None = None
-               ) -> np.ndarray:
-    """The tests of the hull of receiver boxes and their lights, packed in rows for detection
-    (``detection.HULL_*`` name the columns), (N, detection.HULL_WIDTH) float64.
-
-    Parameters
-    ----------
-    box_low, box_high : (N, 3)    boxes around receivers.
-    light : (N,) int64            the light they see.
-    side : (N,) float64           +1 / -1: the side of the light the receivers are on.
-    height : (N,) float64         the receivers' largest height above the light.
-    uv_low, uv_high : (N, 2) float64 or None   a (u, v) rectangle holding the receivers' clipped lights
-                                  (tighter than the light's own: a sun's, a lamp's plane, a horizon); None:
-                                  the light's bounding rectangle.
-
-    An edge that crosses the light from a point of a box lies in the bounding box of the box and the
-    light, inside the hull's four side planes, and has a point in front of the light's plane and below
-    the receiver: what the tests keep. Each side plane contains one edge of the light's (u, v) bounding
-    rectangle and touches the box, with box and light on its negative side (n . y <= offset), so anything
-    beyond it meets no segment from the box to the light.
-    """
-    table = np.empty((len(light), HULL_WIDTH))
-    if uv_low is None:
-        real = np.arange(frames.uv.shape[1])[None, :] < frames.vertex_count[:, None]
-        uv_low = np.stack([np.where(real, frames.uv[..., k], np.inf).min(axis=1) for k in range(2)], axis=1)[light]
-        uv_high = np.stack([np.where(real, frames.uv[..., k], -np.inf).max(axis=1) for k in range(2)], axis=1)[light]
-    _hull_rows(np.ascontiguousarray(box_low, np.float64), np.ascontiguousarray(box_high, np.float64),
-               np.ascontiguousarray(light, np.int64), np.ascontiguousarray(side, np.float64),
-               np.ascontiguousarray(height, np.float64), frames.origin, frames.tangent, frames.bitangent, frames.normal,
-               np.ascontiguousarray(uv_low, np.float64), np.ascontiguousarray(uv_high, np.float64), table)
-    return table
-
-
-@njit(cache=True, nogil=True)
-def _hull_rows(box_low, box_high, light, side, height, origin, tangent, bitangent, normal, uv_low, uv_high, table):
-    corners = np.empty((8, 3))
-    for n in range(len(light)):
-        l = light[n]
-        row = table[n]
-        u0, u1, v0, v1 = uv_low[n, 0], uv_high[n, 0], uv_low[n, 1], uv_high[n, 1]
-        for k in range(3):
-            low, high = box_low[n, k], box_high[n, k]
-            for corner in range(4):  # the (u, v) rectangle's corners
-                u = u1 if corner & 1 else u0
-                v = v1 if corner & 2 else v0
-                point = origin[l, k] + u * tangent[l, k] + v * bitangent[l, k]
-                low, high = min(low, point), max(high, point)
-            row[HULL_LOW + k], row[HULL_HIGH + k] = low, high
-            row[HULL_TOWARD + k] = side[n] * normal[l, k]
-            row[HULL_BOX_LOW + k], row[HULL_BOX_HIGH + k] = box_low[n, k], box_high[n, k]
-        row[HULL_BASE] = row[HULL_TOWARD] * origin[l, 0] + row[HULL_TOWARD + 1] * origin[l, 1] + \
-            row[HULL_TOWARD + 2] * origin[l, 2]
-        largest_high, largest_low = 0.0, 0.0
-        for k in range(3):
-            largest_high, largest_low = max(largest_high, abs(row[HULL_HIGH + k])), max(largest_low, abs(row[HULL_LOW + k]))
-        row[HULL_EPS] = PLANE_EPS * (largest_high + largest_low)
-        row[HULL_HEIGHT] = height[n]
-        for i in range(8):
-            for k in range(3):
-                corners[i, k] = box_high[n, k] if (i >> k) & 1 else box_low[n, k]
-        for s in range(4):  # the rectangle's edges u = u0, u = u1, v = v0, v = v1: a point and the outward normal
-            axis_value = (u0, u1, v0, v1)[s]
-            sign = -1.0 if s % 2 == 0 else 1.0
-            valid = True
-            tilt = np.inf
-            for i in range(8):
-                alpha, beta = 0.0, 0.0
-                for k in range(3):
-                    point = origin[l, k] + axis_value * (tangent[l, k] if s < 2 else bitangent[l, k])
-                    out = sign * (tangent[l, k] if s < 2 else bitangent[l, k])
-                    alpha += (corners[i, k] - point) * out
-                    beta += (corners[i, k] - point) * side[n] * normal[l, k]
-                if not beta > 0:
-                    valid = False
-                    break
-                tilt = min(tilt, -alpha / beta)
-            if not valid:
-                tilt = 0.0
-            offset = 0.0
-            for k in range(3):
-                point = origin[l, k] + axis_value * (tangent[l, k] if s < 2 else bitangent[l, k])
-                plane = sign * (tangent[l, k] if s < 2 else bitangent[l, k]) + tilt * side[n] * normal[l, k]
-                row[HULL_SIDE_NORMAL + 3 * s + k] = plane
-                offset += plane * point
-            row[HULL_SIDE_OFFSET + s] = offset
-            row[HULL_SIDE_VALID + s] = 1.0 if valid else 0.0
 
 
 # ------------------------------------------------------------------------------------------------------
@@ -297,7 +202,7 @@ def compile_kernels() -> bool:
     here) and writes them to its cache (``__pycache__`` beside the modules, or a per-user folder where that
     is read-only); afterwards this loads them in a fraction of a second. Returns whether any had to be
     compiled."""
-    compile_detection()
+    detection_kernels = compile_detection()
     compile_arrangement()
     _cone_planes(np.zeros((1, 3, 3)), np.zeros(1, np.int64), np.empty((1, 3, 3)), np.empty((1, 3), np.bool_))
     Arcs.empty().by_couple(1)
@@ -316,7 +221,7 @@ def compile_kernels() -> bool:
     _fan_triangles_kernel(np.zeros(1, np.int64), np.zeros(1, np.int64), three, three, three, three,
                           np.zeros((1, 2)), three, three, np.empty((1, 3, 2)))
     _union_find(np.zeros(1, np.int64), np.zeros(1, np.int64), 1)  # anti-aliasing's surfaces
-    kernels = (detection_module._detect, _union_find, *compile_regions(), arrangement_module._fans,
+    kernels = (*detection_kernels, _union_find, *compile_regions(), arrangement_module._fans,
                arrangement_module._jumps, _cone_planes, _sort_by_couple, _gather_depth_rays, _step_depth_rays,
                _bounding_cones, _reference_points, _hull_rows, *compile_edge_tree(), *compile_rng(),
                *compile_illumination(), *compile_ggx(), _fan_triangles_kernel, *compile_geometry(),

@@ -12,8 +12,11 @@ by default), so a user's smooth meshes render with it.
 Here the lift of every visible point is worked out once (``terminator_lift``, at pass 1), and pass 2's
 couples whose light any of it reaches (``terminator_couples``) are seen from lifted origins: their light
 is cut into strips over which the amount changes little, each strip a couple of its own seen from the
-origin its mean amount gives. The rest of pass 2 is unchanged: a strip's arcs, depths and fans are a
-couple's, integrated from the receiver itself.
+origin its mean amount gives. Most such couples need no strips: where no edge's arc crosses the light
+from any origin the lift gives its directions (``_arcs_may_cross``, a walk of the edge tree over the
+segment of origins), every strip would see the light whole or not at all, alike, and the couple stays
+one strip. The rest of pass 2 is unchanged: a strip's arcs, depths and fans are a couple's, integrated
+from the receiver itself.
 """
 
 from __future__ import annotations
@@ -21,7 +24,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .geometry import LightFrames, ReceiverLight, clip_by_lines, pad_to, receiver_light, trim
+from .detection import hull_table, segment_may_cross
+from .edge_tree import LEAF_EDGES, MeshEdges
+from .geometry import PLANE_EPS, LightFrames, ReceiverLight, clip_by_lines, pad_to, receiver_light, trim
 
 
 def terminator_lift(corners: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.ndarray,
@@ -81,7 +86,8 @@ TERMINATOR_STRIPS = 4
 
 
 def terminator_couples(surface, frames: LightFrames, couples: ReceiverLight, couple_pixel: np.ndarray,
-                       lights: np.ndarray) -> tuple[ReceiverLight, np.ndarray, np.ndarray | None]:
+                       lights: np.ndarray, edges: MeshEdges | None = None
+                       ) -> tuple[ReceiverLight, np.ndarray, np.ndarray | None]:
     """Cycles' Shadow Terminator Geometry Offset: a shadow ray leaving a smooth-shaded triangle towards
     grazing light starts from the smooth surface its vertex normals describe (``surface.SurfacePoints.lift``),
     moved by an amount that grows as its direction grazes (``lift_amount``).
@@ -92,7 +98,10 @@ def terminator_couples(surface, frames: LightFrames, couples: ReceiverLight, cou
     wholly below the triangle's plane may come back) and its own triangle joins the occluders
     (``silhouette_pieces``). Its light is cut into strips across the direction in which the amount
     changes (fitted over the light's vertices), by steps of TERMINATOR_STEP, each strip seen from the
-    origin its mean amount gives: the pieces of a couple's strips add up to its light's.
+    origin its mean amount gives: the pieces of a couple's strips add up to its light's. Where no edge's arc
+    crosses the light from any origin of the segment the lift spans (``detection.segment_may_cross`` over the
+    scene's ``edges``; None: not tested), every strip would see what one origin sees: the couple stays one
+    strip, its whole light seen from the origin of its mean amount.
 
     Parameters: the batch's ``couples`` and ``couple_pixel`` (``couples_for``) of the lights ``lights``
     (L,) bool. Returns the couples to work out and integrate (each strip a couple of its own), their
@@ -121,43 +130,19 @@ def terminator_couples(surface, frames: LightFrames, couples: ReceiverLight, cou
         return couples, couple_pixel, None
     pixel, wide, raw = pixel[moving], wide.take(moving), raw[moving]
     shading, geometric, cutoff = shading[moving], geometric[moving], cutoff[moving]
-    # The raw amount fitted over the light's vertices by a plane in (u, v): it grows along ``axis`` by
-    # ``gradient`` per unit of u . axis. Strips: one where the fit takes no lift, one where it takes all of
-    # it, and between them strips over which it changes by TERMINATOR_STEP (at most TERMINATOR_STRIPS of
-    # them); each strip is then seen from the origin its mean amount gives.
-    n_moving = len(pixel)
-    axis, start, end = np.empty((n_moving, 2)), np.empty(n_moving), np.empty(n_moving)
-    low_level, high_level, middle = np.empty(n_moving), np.empty(n_moving), np.empty(n_moving, np.int64)
-    _strip_plan(np.ascontiguousarray(wide.uv, np.float64), np.ascontiguousarray(wide.count, np.int64),
-                np.ascontiguousarray(raw, np.float64), float(TERMINATOR_STEP), int(TERMINATOR_STRIPS), axis, start, end,
-                low_level, high_level, middle)
-    below = (low_level > start).astype(np.int64)
-    above = (high_level < end).astype(np.int64)
-    strips = below + middle + above
-    owner = np.repeat(np.arange(len(pixel)), strips)
-    index = np.arange(int(strips.sum())) - np.repeat(np.cumsum(strips) - strips, strips)
-    k, n = index - below[owner], np.maximum(middle[owner], 1)
-    lo, hi = low_level[owner], high_level[owner]
-    low = np.where(k < 0, start[owner], np.where(k < middle[owner], lo + (hi - lo) * k / n, hi))
-    high = np.where(k < 0, lo, np.where(k < middle[owner], lo + (hi - lo) * (k + 1) / n, end[owner]))
     normals = (cutoff, shading, geometric)
-    cut = _cut_strips(wide, frames, normals, axis, owner, low, high, index == 0, index == strips[owner] - 1)
-    # Where the fitted plane is far from the amount (a large light close by), a strip spans more: split
-    # those once more, evenly, by the spread of the amount between their vertices.
-    spread, low, high, first, last = cut[4:-1]
-    pieces = np.where(spread > 2.0 * TERMINATOR_STEP, np.minimum(np.ceil(spread / TERMINATOR_STEP),
-                                                                 TERMINATOR_STRIPS), 1).astype(np.int64)
-    split = np.flatnonzero(pieces > 1)
-    if len(split):
-        # Only the strips split again are cut again (cutting every strip again, as this did, was a third of
-        # the set-up on the Suzannes); the others keep their first cut, in their place.
-        parts = pieces[split]
-        parent = np.repeat(split, parts)
-        index = np.arange(int(parts.sum())) - np.repeat(np.cumsum(parts) - parts, parts)
-        lo, span, n = low[parent], high[parent] - low[parent], pieces[parent]
-        again = _cut_strips(wide, frames, normals, axis, cut[0][parent], lo + span * index / n,
-                            lo + span * (index + 1) / n, first[parent] & (index == 0), last[parent] & (index == n - 1))
-        cut = _merged_strips(cut, again, np.flatnonzero(pieces == 1), parent[again[-1]], index[again[-1]])
+    # Couples no edge's arc crosses from the origins the lift gives their directions: their light is seen
+    # whole or not at all from every such origin, one strip seen from the largest amount's. The others are cut.
+    crossed, largest = _arcs_may_cross(surface, frames, edges, pixel, wide) if edges is not None else \
+        (np.ones(len(pixel), bool), np.ones(len(pixel)))
+    whole = ~crossed
+    cut = _strips(wide, frames, normals, raw, np.flatnonzero(~whole))
+    if whole.any():
+        rows = np.flatnonzero(whole)
+        one = (rows, wide.uv[rows], wide.count[rows], largest[rows])  # seen from the largest amount's origin
+        width = max(cut[1].shape[1], one[1].shape[1])
+        cut = tuple(np.concatenate([pad_to(mine, width), pad_to(theirs, width)]) if mine.ndim == 3 else
+                    np.concatenate([mine, theirs]) for mine, theirs in zip(cut[:4], one[:4]))
     owner, strip_uv, strip_count, strip_amount = cut[:4]
     strip = ReceiverLight(wide.light[owner], strip_uv, strip_count, wide.side[owner], wide.local[owner],
                           wide.receiver_in_light[owner])
@@ -176,6 +161,179 @@ def terminator_couples(surface, frames: LightFrames, couples: ReceiverLight, cou
     shift = np.zeros((len(merged_pixel), 3))
     shift[int(stay.sum()):] = strip_amount[:, None] * surface.lift[pixel[owner]]
     return merged, merged_pixel, shift
+
+
+def _arcs_may_cross(surface, frames: LightFrames, edges: MeshEdges, pixel: np.ndarray, wide: ReceiverLight
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Whether an edge's arc may cross the light ``wide`` (N couples, their pixels ``pixel``) from the origins
+    the lift gives its directions (``detection.segment_may_cross``), (N,) bool, True also where they are not
+    clearly in front of the light's plane or the lift does not leave the triangle's plane; and the largest
+    amount of the lift any direction to the light takes, (N,) float64 in 0 .. 1 (1 where untested).
+
+    A direction below the receiver's own (flat) plane takes the whole lift (``lift_amount`` is 1 wherever
+    the geometric cosine is not positive), one above it at most the amount its smallest geometric and
+    shading cosines over that part give (both cosines are smallest at a vertex: their level sets cut the
+    light's plane in convex regions). So the light's part above the plane is tested from the segment
+    receiver .. receiver + that amount of the lift, where its own triangle's edges are out of reach
+    (segment and light on one side of its plane); the part below from the lift's end alone, every triangle
+    counted. Where neither test finds an edge, every direction sees the same depth complexity from the
+    origin it takes as from the origin of the largest amount."""
+    light = wide.light
+    near = surface.position[pixel]
+    lift = surface.lift[pixel]
+    far = near + lift
+    toward = wide.side[:, None] * frames.normal[light]
+    offset = np.einsum("nk,nk->n", toward, frames.origin[light])
+    height_near = np.einsum("nk,nk->n", toward, near) - offset
+    height_far = np.einsum("nk,nk->n", toward, far) - offset
+    scale = np.abs(near).max(axis=1) + np.sqrt(frames.area[light])
+    # The lift leaves the receiver's plane on the geometric normal's side (``terminator_lift``).
+    rise = np.einsum("nk,nk->n", lift, surface.geometric_normal[pixel])
+    testable = ((height_near > PLANE_EPS * scale) & (height_far > PLANE_EPS * scale) & (rise > PLANE_EPS * scale))
+    may, amount = np.ones(len(pixel), bool), np.ones(len(pixel))
+    rows = np.flatnonzero(testable)
+    if len(rows) == 0:
+        return may, amount
+    # Two queries per couple: the light's part above the plane from the segment, its own triangle skipped;
+    # the part below from the lift's end.
+    width = wide.uv.shape[1] + 1  # a convex polygon cut by a line gains at most one vertex
+    n_queries = 2 * len(rows)
+    polygon, count = np.empty((n_queries, width, 3)), np.empty(n_queries, np.int64)
+    start, end, low, high = (np.empty((n_queries, 3)) for _ in range(4))
+    uv_low, uv_high, skipped = np.empty((n_queries, 2)), np.empty((n_queries, 2)), np.empty(n_queries, np.int64)
+    largest = np.empty(len(rows))
+
+    def rows_of(array):
+        return np.ascontiguousarray(array[rows], np.float64)
+
+    _lift_queries(rows_of(wide.uv), np.ascontiguousarray(wide.count[rows], np.int64),
+                  np.ascontiguousarray(light[rows], np.int64), rows_of(near), rows_of(lift),
+                  rows_of(surface.geometric_normal[pixel]), rows_of(surface.shading_normal[pixel]),
+                  rows_of(surface.lift_cutoff[pixel]), np.ascontiguousarray(surface.index_triangle[pixel[rows]], np.int64),
+                  frames.origin, frames.tangent, frames.bitangent, polygon, count, start, end, low, high, uv_low,
+                  uv_high, skipped, largest)
+    query_light, query_side = np.repeat(light[rows], 2), np.repeat(wide.side[rows], 2)
+    height = np.repeat(np.maximum(height_near[rows], height_far[rows]), 2)
+    hulls = hull_table(frames, low, high, query_light, query_side, height, uv_low, uv_high)
+    crossed = segment_may_cross(edges, LEAF_EDGES, hulls, query_light, start, end, polygon, count,
+                                frames.excluded[query_light], skipped)
+    may[rows] = crossed[0::2] | crossed[1::2]
+    amount[rows] = largest
+    return may, amount
+
+
+@njit(cache=True, nogil=True)
+def _lift_queries(uv, count, light, near, lift, geometric, shading, cutoff, own, origin, tangent, bitangent, polygon,
+                  out_count, start, end, low, high, uv_low, uv_high, skipped, largest):
+    """``_arcs_may_cross``' two queries per couple n (rows 2n and 2n + 1 of the outputs): its light uv[n]
+    (count[n] vertices) cut by the receiver's plane (through near[n], unit normal ``geometric``), the part
+    above seen from near .. near + largest[n] lift[n] with its own triangle skipped, the part below from
+    near + lift[n] alone. Writes each part's world polygon (2N, W, 3) and vertex count (fewer than 3:
+    empty), the segment's start, end and box (low, high), the part's (u, v) bounds and the triangle skipped
+    (-1: none); and ``largest`` (N,), the largest amount of the lift over the light (``lift_amount``'s bound
+    by the smallest cosines over the part above, 1 if there is a part below)."""
+    width = uv.shape[1]
+    part = np.empty((width + 1, 2))
+    for n in range(len(count)):
+        l = light[n]
+        g0, g1, g2 = geometric[n, 0], geometric[n, 1], geometric[n, 2]
+        a = g0 * tangent[l, 0] + g1 * tangent[l, 1] + g2 * tangent[l, 2]
+        b = g0 * bitangent[l, 0] + g1 * bitangent[l, 1] + g2 * bitangent[l, 2]
+        c = g0 * (origin[l, 0] - near[n, 0]) + g1 * (origin[l, 1] - near[n, 1]) + g2 * (origin[l, 2] - near[n, 2])
+        largest[n] = 1.0
+        below = False
+        for side in (1, 0):  # the part below first: where there is one, the part above reaches the whole lift
+            q = 2 * n + side
+            sign = 1.0 if side == 0 else -1.0
+            kept = 0
+            for k in range(count[n]):  # the polygon's edges: keep sign * (a u + b v + c) >= 0
+                j = k + 1 if k + 1 < count[n] else 0
+                value_k = sign * (a * uv[n, k, 0] + b * uv[n, k, 1] + c)
+                value_j = sign * (a * uv[n, j, 0] + b * uv[n, j, 1] + c)
+                if value_k >= 0:
+                    part[kept, 0], part[kept, 1] = uv[n, k, 0], uv[n, k, 1]
+                    kept += 1
+                if (value_k >= 0) != (value_j >= 0) and kept < width + 1:
+                    t = value_k / (value_k - value_j)
+                    part[kept, 0] = uv[n, k, 0] + t * (uv[n, j, 0] - uv[n, k, 0])
+                    part[kept, 1] = uv[n, k, 1] + t * (uv[n, j, 1] - uv[n, k, 1])
+                    kept += 1
+            out_count[q] = kept
+            below |= side == 1 and kept >= 3
+            if side == 0 and kept >= 3 and not below:
+                # The smallest cosines over the part above, at its vertices.
+                least_geometric, least_shading = np.inf, np.inf
+                for k in range(kept):
+                    d0 = origin[l, 0] + part[k, 0] * tangent[l, 0] + part[k, 1] * bitangent[l, 0] - near[n, 0]
+                    d1 = origin[l, 1] + part[k, 0] * tangent[l, 1] + part[k, 1] * bitangent[l, 1] - near[n, 1]
+                    d2 = origin[l, 2] + part[k, 0] * tangent[l, 2] + part[k, 1] * bitangent[l, 2] - near[n, 2]
+                    length = max(np.sqrt(d0 * d0 + d1 * d1 + d2 * d2), 1e-300)
+                    least_geometric = min(least_geometric, (d0 * g0 + d1 * g1 + d2 * g2) / length)
+                    least_shading = min(least_shading, abs(d0 * shading[n, 0] + d1 * shading[n, 1]
+                                                           + d2 * shading[n, 2]) / length)
+                bound = max(1.0 - least_geometric / cutoff[n], 2.0 - (least_geometric + least_shading) / cutoff[n])
+                largest[n] = min(max(bound, 0.0), 1.0)
+            reach = largest[n] if side == 0 else 1.0
+            for d in range(3):
+                start[q, d] = near[n, d] + (0.0 if side == 0 else lift[n, d])
+                end[q, d] = near[n, d] + reach * lift[n, d]
+                low[q, d] = min(start[q, d], end[q, d])
+                high[q, d] = max(start[q, d], end[q, d])
+            skipped[q] = own[n] if side == 0 else -1
+            uv_low[q, 0], uv_low[q, 1], uv_high[q, 0], uv_high[q, 1] = np.inf, np.inf, -np.inf, -np.inf
+            for k in range(polygon.shape[1]):
+                source = min(k, max(kept - 1, 0))  # padding repeats the last vertex
+                u, v = part[source, 0], part[source, 1]
+                uv_low[q, 0], uv_low[q, 1] = min(uv_low[q, 0], u), min(uv_low[q, 1], v)
+                uv_high[q, 0], uv_high[q, 1] = max(uv_high[q, 0], u), max(uv_high[q, 1], v)
+                for d in range(3):
+                    polygon[q, k, d] = origin[l, d] + u * tangent[l, d] + v * bitangent[l, d]
+
+
+def _strips(wide: ReceiverLight, frames: LightFrames, normals: tuple, raw: np.ndarray, rows: np.ndarray) -> tuple:
+    """The strips of the moved couples ``rows`` of ``wide`` (their raw amounts ``raw`` (N, K) at its vertices,
+    ``normals`` as ``_cut_strips`` takes them): the owner (a row of ``wide``), uv, count and amount of each
+    (``_cut_strips``' first four). The raw amount fitted over the light's vertices by a plane in (u, v) grows
+    along ``axis`` by ``gradient`` per unit of u . axis. Strips: one where the fit takes no lift, one where it
+    takes all of it, and between them strips over which it changes by TERMINATOR_STEP (at most
+    TERMINATOR_STRIPS of them); each strip is then seen from the origin its mean amount gives."""
+    n_moving = len(rows)
+    if n_moving == 0:
+        return np.zeros(0, np.int64), np.zeros((0, 3, 2)), np.zeros(0, np.int64), np.zeros(0)
+    axis, start, end = np.zeros((len(wide.count), 2)), np.empty(n_moving), np.empty(n_moving)
+    low_level, high_level, middle = np.empty(n_moving), np.empty(n_moving), np.empty(n_moving, np.int64)
+    plan_axis = np.empty((n_moving, 2))
+    _strip_plan(np.ascontiguousarray(wide.uv[rows], np.float64), np.ascontiguousarray(wide.count[rows], np.int64),
+                np.ascontiguousarray(raw[rows], np.float64), float(TERMINATOR_STEP), int(TERMINATOR_STRIPS),
+                plan_axis, start, end, low_level, high_level, middle)
+    axis[rows] = plan_axis
+    below = (low_level > start).astype(np.int64)
+    above = (high_level < end).astype(np.int64)
+    strips = below + middle + above
+    owner = np.repeat(np.arange(n_moving), strips)
+    index = np.arange(int(strips.sum())) - np.repeat(np.cumsum(strips) - strips, strips)
+    k, n = index - below[owner], np.maximum(middle[owner], 1)
+    lo, hi = low_level[owner], high_level[owner]
+    low = np.where(k < 0, start[owner], np.where(k < middle[owner], lo + (hi - lo) * k / n, hi))
+    high = np.where(k < 0, lo, np.where(k < middle[owner], lo + (hi - lo) * (k + 1) / n, end[owner]))
+    cut = _cut_strips(wide, frames, normals, axis, rows[owner], low, high, index == 0, index == strips[owner] - 1)
+    # Where the fitted plane is far from the amount (a large light close by), a strip spans more: split
+    # those once more, evenly, by the spread of the amount between their vertices.
+    spread, low, high, first, last = cut[4:-1]
+    pieces = np.where(spread > 2.0 * TERMINATOR_STEP, np.minimum(np.ceil(spread / TERMINATOR_STEP),
+                                                                 TERMINATOR_STRIPS), 1).astype(np.int64)
+    split = np.flatnonzero(pieces > 1)
+    if len(split):
+        # Only the strips split again are cut again (cutting every strip again, as this did, was a third of
+        # the set-up on the Suzannes); the others keep their first cut, in their place.
+        parts = pieces[split]
+        parent = np.repeat(split, parts)
+        index = np.arange(int(parts.sum())) - np.repeat(np.cumsum(parts) - parts, parts)
+        lo, span, n = low[parent], high[parent] - low[parent], pieces[parent]
+        again = _cut_strips(wide, frames, normals, axis, cut[0][parent], lo + span * index / n,
+                            lo + span * (index + 1) / n, first[parent] & (index == 0), last[parent] & (index == n - 1))
+        cut = _merged_strips(cut, again, np.flatnonzero(pieces == 1), parent[again[-1]], index[again[-1]])
+    return cut[:4]
 
 
 def _cut_strips(wide: ReceiverLight, frames: LightFrames, normals: tuple, axis: np.ndarray, owner: np.ndarray,
@@ -380,4 +538,8 @@ def compile_terminator() -> list:
                    np.zeros(1), three, three, np.empty(1), np.empty(1))
     _strip_plan(np.zeros((1, 3, 2)), np.full(1, 3, np.int64), np.zeros((1, 3)), 0.25, 4, np.empty((1, 2)),
                 np.empty(1), np.empty(1), np.empty(1), np.empty(1), np.empty(1, np.int64))
-    return [_grazing, _amounts, _strip_amounts, _strip_plan]
+    _lift_queries(np.zeros((1, 3, 2)), np.full(1, 3, np.int64), np.zeros(1, np.int64), three, three, three, three,
+                  np.ones(1), np.zeros(1, np.int64), three, three, three, np.empty((2, 4, 3)), np.empty(2, np.int64),
+                  np.empty((2, 3)), np.empty((2, 3)), np.empty((2, 3)), np.empty((2, 3)), np.empty((2, 2)),
+                  np.empty((2, 2)), np.empty(2, np.int64), np.empty(1))
+    return [_grazing, _amounts, _strip_amounts, _strip_plan, _lift_queries]
