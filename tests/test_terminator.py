@@ -271,7 +271,8 @@ def test_the_segment_test_keeps_every_arc_an_origin_of_the_segment_sees():
     """``detection.segment_may_cross`` (which lets a lifted couple skip its strips) against the arc test
     itself at 17 origins along each segment, on 120 random bumpy patches with stray triangles under a
     light: wherever some origin sees an arc cross the light the segment test says so. It is also not
-    trivially true: it clears most of the segments that no origin sees an arc from."""
+    trivially true: it clears most of the segments that no origin sees an arc from. A query settled by an
+    earlier one that found an edge is not walked."""
     from lazyvis_addon.core.detection import hull_table, segment_may_cross
     from lazyvis_addon.core.edge_tree import LEAF_EDGES, MeshEdges
     rng = np.random.default_rng(7)
@@ -303,6 +304,12 @@ def test_the_segment_test_keeps_every_arc_an_origin_of_the_segment_sees():
                            np.ones(1), height, frames.uv[:1, :count].min(axis=1), frames.uv[:1, :count].max(axis=1))
         may = segment_may_cross(edges, LEAF_EDGES, hulls, np.zeros(1, np.int64), near[None], far[None], polygon,
                                 np.array([count]), np.full(1, -1, np.int64), np.array([skip]))[0]
+        # A second query for the same couple is walked only where the first found nothing.
+        twice = segment_may_cross(edges, LEAF_EDGES, np.repeat(hulls, 2, axis=0), np.zeros(2, np.int64),
+                                  np.repeat(near[None], 2, axis=0), np.repeat(far[None], 2, axis=0),
+                                  np.repeat(polygon, 2, axis=0), np.array([count] * 2), np.full(2, -1, np.int64),
+                                  np.array([skip] * 2), np.array([-1, 0]))
+        assert twice.tolist() == [may, False]
         arcs = any(_arcs_at(edges, frames, near + t * lift, records) for t in np.linspace(0.0, 1.0, 17))
         seen += arcs
         cleared += not may

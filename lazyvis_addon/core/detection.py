@@ -402,7 +402,7 @@ SEGMENT_SLACK = 1e-9
 
 def segment_may_cross(edges, leaf_size: int, hulls: np.ndarray, query_light: np.ndarray, near: np.ndarray,
                       far: np.ndarray, polygon: np.ndarray, count: np.ndarray, excluded: np.ndarray,
-                      skipped: np.ndarray) -> np.ndarray:
+                      skipped: np.ndarray, settled_by: np.ndarray | None = None) -> np.ndarray:
     """Whether any edge may be an arc crossing light polygon q as seen from some point of the segment
     near[q] .. far[q]: (Q,) bool, False only where no point of the segment sees an arc cross the polygon.
 
@@ -423,6 +423,8 @@ def segment_may_cross(edges, leaf_size: int, hulls: np.ndarray, query_light: np.
     skipped : (Q,) int64              a triangle whose edges are left out (-1 for none): the receiver's own,
                                       where the segment and the polygon lie on one side of its plane, so that
                                       no segment between them meets its edges. Every other face counts.
+    settled_by : (Q,) int64 or None   query q is not walked (its answer stays False) where the earlier query
+                                      settled_by[q] found an edge: both answer for one couple (-1: walked).
     """
     def f64(a):
         return np.ascontiguousarray(a, np.float64)
@@ -440,14 +442,15 @@ def segment_may_cross(edges, leaf_size: int, hulls: np.ndarray, query_light: np.
                     f64(edges.face_offset), f64(edges.face_size),
                     i64(edges.part_of if edges.part_of is not None and len(edges.part_of) else np.full(1, -1)),
                     f64(hulls), i64(query_light), f64(near), f64(far), f64(polygon), i64(count), i64(excluded),
-                    i64(skipped), edges.n_leaves, leaf_size, out)
+                    i64(skipped), i64(np.full(len(hulls), -1) if settled_by is None else settled_by), edges.n_leaves,
+                    leaf_size, out)
     return out
 
 
 @njit(cache=True, nogil=True)
 def _segment_detect(node_low, node_high, node_axis, node_spread, node_lights, lights_seen, record_low, record_high,
                     record_light, edge_start, edge_end, triangle, face_normal, face_offset, face_size, part_of, hulls,
-                    query_light, near, far, polygon, count, excluded, skipped, n_leaves, leaf_size, out):
+                    query_light, near, far, polygon, count, excluded, skipped, settled_by, n_leaves, leaf_size, out):
     """``segment_may_cross``: per segment the walk of ``_detect`` (the segment's box as the receivers' box),
     each record left tested by ``_segment_may_cross`` until one may cross."""
     node_low, node_high, node_axis = borrowed(node_low), borrowed(node_high), borrowed(node_axis)
@@ -458,12 +461,13 @@ def _segment_detect(node_low, node_high, node_axis, node_spread, node_lights, li
     part_of, hulls, query_light = borrowed(part_of), borrowed(hulls), borrowed(query_light)
     near, far, polygon, count, excluded = borrowed(near), borrowed(far), borrowed(polygon), borrowed(count), \
         borrowed(excluded)
-    skipped = borrowed(skipped)
+    skipped, settled_by = borrowed(skipped), borrowed(settled_by)
     n_records = len(record_light)
     stack = np.empty(128, np.int64)
     for q in range(len(hulls)):
         bit = np.uint64(1) << np.uint64(query_light[q]) if query_light[q] < 64 else np.uint64(0)
-        depth = 1 if count[q] >= 3 else 0  # less than a triangle: nothing to cross
+        settled = settled_by[q] >= 0 and out[settled_by[q]]
+        depth = 1 if count[q] >= 3 and not settled else 0  # less than a triangle: nothing to cross
         stack[0] = 0
         while depth > 0 and not out[q]:
             depth -= 1
@@ -603,5 +607,6 @@ def compile_detection() -> tuple:
             16)
     _segment_detect(f, f, f, one, bits, bits, f, f, i, f, f, np.zeros((1, 2), np.int64), faces, np.zeros((1, 2)),
                     np.zeros((1, 2)), np.full(1, -1, np.int64), hull, i, f, f, np.zeros((1, 3, 3)), np.full(1, 3, np.int64),
-                    np.full(1, -1, np.int64), np.full(1, -1, np.int64), 1, 32, np.zeros(1, np.bool_))
+                    np.full(1, -1, np.int64), np.full(1, -1, np.int64), np.full(1, -1, np.int64), 1, 32,
+                    np.zeros(1, np.bool_))
     return _detect, _segment_detect

@@ -215,8 +215,10 @@ def _arcs_may_cross(surface, frames: LightFrames, edges: MeshEdges, pixel: np.nd
     query_light, query_side = np.repeat(light[rows], 2), np.repeat(wide.side[rows], 2)
     height = np.repeat(np.maximum(height_near[rows], height_far[rows]), 2)
     hulls = hull_table(frames, low, high, query_light, query_side, height, uv_low, uv_high)
+    # The part below is walked only where the part above found nothing.
+    settled_by = np.where(np.arange(n_queries) % 2 == 1, np.arange(n_queries) - 1, -1)
     crossed = segment_may_cross(edges, LEAF_EDGES, hulls, query_light, start, end, polygon, count,
-                                frames.excluded[query_light], skipped)
+                                frames.excluded[query_light], skipped, settled_by)
     may[rows] = crossed[0::2] | crossed[1::2]
     amount[rows] = largest
     return may, amount
