@@ -196,3 +196,30 @@ def test_polygon_bounds_are_the_per_coordinate_min_and_max():
     low, high = polygon_bounds(uv)
     np.testing.assert_array_equal(low, uv.min(axis=1))
     np.testing.assert_array_equal(high, uv.max(axis=1))
+
+
+def test_short_edges_take_the_series_and_agree_with_the_arctangent_form():
+    """Lambert's formula over a regular 64-gon (its edges under SHORT_EDGE_SINE apart seen from its axis or
+    from far, some over it seen from just above it near its rim) against the same sum written with numpy's
+    arctan2, to rounding, and against the disk's closed form pi R^2 / (R^2 + h^2) seen from its axis."""
+    from lazyvis_addon.core.geometry import SHORT_EDGE_SINE, projected_solid_angle_uv
+    angle = np.linspace(0.0, 2.0 * np.pi, 64, endpoint=False)
+    branches = []
+    for radius, height, offset in ((0.5, 10.0, 0.0), (1.0, 0.05, 0.0), (0.3, 2.0, 6.0), (1.0, 0.01, 0.95),
+                                   (2.0, 0.2, 1.9)):
+        uv = radius * np.stack([np.cos(angle), np.sin(angle)], axis=1)[None]
+        local = np.array([[offset, 0.0, height]])
+        got = projected_solid_angle_uv(uv, np.array([64]), local, np.array([[0.0, 0.0, 1.0]]))[0]
+        points = np.concatenate([uv[0] - local[0, :2], np.full((64, 1), -height)], axis=1)
+        points /= np.linalg.norm(points, axis=1, keepdims=True)
+        after = np.roll(points, -1, axis=0)
+        cross = np.cross(points, after)
+        sine = np.linalg.norm(cross, axis=1)
+        angle_between = np.arctan2(sine, (points * after).sum(axis=1))
+        expected = abs(0.5 * (cross[:, 2] / sine * angle_between).sum())
+        assert got == pytest.approx(expected, rel=1e-13), (radius, height, offset)
+        if offset == 0.0:  # the inscribed polygon's closed form: the disk's times its area ratio, nearly
+            disk = np.pi * radius ** 2 / (radius ** 2 + height ** 2)
+            assert got == pytest.approx(disk, rel=2e-3)
+        branches.append((sine < SHORT_EDGE_SINE).all())
+    assert branches == [True, True, True, False, False]  # both branches are exercised

@@ -506,16 +506,31 @@ def _unit(a0, a1, a2):
     return a0 / length, a1 / length, a2 / length
 
 
+# Below this sine of the angle between an edge's ends, ``_unit_edge_vector`` takes its angle from a series.
+SHORT_EDGE_SINE = 0.1
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _unit_edge_vector(a0, a1, a2, b0, b1, b2):
     """One edge's term of the irradiance vector (times 2) between unit directions a and b: the unit vector
     of a x b times the angle between them (scalars: no arrays, so nothing to reference-count when inlined).
     The callers normalise each vertex once for the two edges that share it (as a function of both ends
-    the normalising was half of the work, and the same numbers: the kernels' results are unchanged)."""
+    the normalising was half of the work, and the same numbers: the kernels' results are unchanged).
+
+    The angle over its sine is arcsin(s) / s for an angle under a right one: where the sine is under
+    SHORT_EDGE_SINE (a disk light's 64 edges seen from more than a few radii away) its series to s^12, whose
+    next term is below 1.4e-16 there, replaces arctan2 and the division, half of the kernel's time
+    (12.8 M edges of random disks: 0.28 -> 0.14 s, largest difference 3e-16 of the largest result)."""
     c0, c1, c2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
-    sin = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+    sin_sq = c0 * c0 + c1 * c1 + c2 * c2
     cos = a0 * b0 + a1 * b1 + a2 * b2
-    ratio = np.arctan2(sin, cos) / sin if sin > 1e-15 else 1.0
+    if cos > 0.0 and sin_sq < SHORT_EDGE_SINE * SHORT_EDGE_SINE:
+        x = sin_sq
+        ratio = 1.0 + x * (1.0 / 6.0 + x * (3.0 / 40.0 + x * (5.0 / 112.0 + x * (35.0 / 1152.0 + x * (
+            63.0 / 2816.0 + x * (231.0 / 13312.0))))))
+    else:
+        sin = np.sqrt(sin_sq)
+        ratio = np.arctan2(sin, cos) / sin if sin > 1e-15 else 1.0
     return c0 * ratio, c1 * ratio, c2 * ratio
 
 
