@@ -283,6 +283,34 @@ def _may_be_silhouette(edge_start, face_normal, face_size, r, cut, hulls, q):
     return cuts or jump != 0.0
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _node_may_hold(node, bit, node_lights, node_low, node_high, node_axis, node_spread, hulls, q):
+    """The walk's test of a tree node for query q (a row of the hull table ``hulls``): some record under it
+    may be a silhouette crossing the light from the query's receivers: its records' lights (``bit``, 0 past
+    the 64th light), its box against the hull, and not every face under it turned one way to the box."""
+    if bit and not node_lights[node] & bit:
+        return False
+    if not _box_passes(hulls, q, node_low, node_high, node):
+        return False
+    return not _one_sided(node_axis, node_spread, node_low, node_high, node, hulls, q)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _record_may_hold(r, q, bit, record_light, query_light, lights_seen, record_low, record_high, edge_start,
+                     face_normal, face_size, hulls):
+    """The walk's tests of edge record r for query q: not a cut segment of another light, a silhouette from
+    some point of the query's light (``lights_seen``), inside the hull, and a silhouette somewhere in the
+    receivers' box (``_may_be_silhouette``)."""
+    cut = record_light[r] >= 0
+    if cut and record_light[r] != query_light[q]:
+        return False
+    if bit and not lights_seen[r] & bit:
+        return False
+    if not _box_passes(hulls, q, record_low, record_high, r):
+        return False
+    return _may_be_silhouette(edge_start, face_normal, face_size, r, cut, hulls, q)
+
+
 @njit(cache=True, nogil=True)
 def _detect(node_low, node_high, node_axis, node_spread, node_lights, lights_seen, record_low, record_high, record_light, edge_start, edge_end,
             third, triangle, face_normal, face_offset, face_size, part_of, hulls, query_light, query_unit, query_units,
@@ -334,12 +362,8 @@ def _detect(node_low, node_high, node_axis, node_spread, node_lights, lights_see
             depth -= 1
             node = stack[depth]
             visits += 1
-            if bit and not node_lights[node] & bit:
+            if not _node_may_hold(node, bit, node_lights, node_low, node_high, node_axis, node_spread, hulls, q):
                 continue
-            if not _box_passes(hulls, q, node_low, node_high, node):
-                continue
-            if _one_sided(node_axis, node_spread, node_low, node_high, node, hulls, q):
-                continue  # every face under the node faces the whole group one way: no silhouette there
             if node < n_leaves - 1:  # inner node: the left child is visited first
                 stack[depth] = 2 * node + 2
                 stack[depth + 1] = 2 * node + 1
@@ -347,15 +371,10 @@ def _detect(node_low, node_high, node_axis, node_spread, node_lights, lights_see
                 continue
             leaf_first = (node - (n_leaves - 1)) * leaf_size
             for r in range(leaf_first, min(leaf_first + leaf_size, n_records)):
+                if not _record_may_hold(r, q, bit, record_light, query_light, lights_seen, record_low, record_high,
+                                        edge_start, face_normal, face_size, hulls):
+                    continue
                 cut = record_light[r] >= 0
-                if cut and record_light[r] != query_light[q]:
-                    continue
-                if bit and not lights_seen[r] & bit:
-                    continue
-                if not _box_passes(hulls, q, record_low, record_high, r):
-                    continue
-                if not _may_be_silhouette(edge_start, face_normal, face_size, r, cut, hulls, q):
-                    continue
                 for u in range(query_unit[q], query_unit[q] + query_units[q]):
                     if not _box_passes(unit_hulls, u, record_low, record_high, r):
                         continue
@@ -472,11 +491,7 @@ def _segment_detect(node_low, node_high, node_axis, node_spread, node_lights, li
         while depth > 0 and not out[q]:
             depth -= 1
             node = stack[depth]
-            if bit and not node_lights[node] & bit:
-                continue
-            if not _box_passes(hulls, q, node_low, node_high, node):
-                continue
-            if _one_sided(node_axis, node_spread, node_low, node_high, node, hulls, q):
+            if not _node_may_hold(node, bit, node_lights, node_low, node_high, node_axis, node_spread, hulls, q):
                 continue
             if node < n_leaves - 1:
                 stack[depth] = 2 * node + 2
@@ -485,18 +500,12 @@ def _segment_detect(node_low, node_high, node_axis, node_spread, node_lights, li
                 continue
             leaf_first = (node - (n_leaves - 1)) * leaf_size
             for r in range(leaf_first, min(leaf_first + leaf_size, n_records)):
-                cut = record_light[r] >= 0
-                if cut and record_light[r] != query_light[q]:
+                if not _record_may_hold(r, q, bit, record_light, query_light, lights_seen, record_low, record_high,
+                                        edge_start, face_normal, face_size, hulls):
                     continue
-                if bit and not lights_seen[r] & bit:
-                    continue
-                if not _box_passes(hulls, q, record_low, record_high, r):
-                    continue
-                if not _may_be_silhouette(edge_start, face_normal, face_size, r, cut, hulls, q):
-                    continue
-                if cut or _segment_may_cross(r, q, edge_start, edge_end, triangle, face_normal, face_offset,
-                                             face_size, part_of, hulls, near, far, polygon, count, excluded,
-                                             skipped):
+                if record_light[r] >= 0 or _segment_may_cross(r, q, edge_start, edge_end, triangle, face_normal,
+                                                              face_offset, face_size, part_of, hulls, near, far,
+                                                              polygon, count, excluded, skipped):
                     out[q] = True
                     break
 
@@ -606,7 +615,8 @@ def compile_detection() -> tuple:
             np.full(1, -1, np.int64), np.zeros((1, 3, 3)), np.zeros((1, 3), np.bool_), np.zeros(1, np.int64), 1, 32, 0,
             16)
     _segment_detect(f, f, f, one, bits, bits, f, f, i, f, f, np.zeros((1, 2), np.int64), faces, np.zeros((1, 2)),
-                    np.zeros((1, 2)), np.full(1, -1, np.int64), hull, i, f, f, np.zeros((1, 3, 3)), np.full(1, 3, np.int64),
+                    np.zeros((1, 2)), np.full(1, -1, np.int64), hull, i, f, f, np.zeros((1, 3, 3)),
+                    np.full(1, 3, np.int64),
                     np.full(1, -1, np.int64), np.full(1, -1, np.int64), np.full(1, -1, np.int64), 1, 32,
                     np.zeros(1, np.bool_))
     return _detect, _segment_detect

@@ -209,8 +209,8 @@ def _arcs_may_cross(surface, frames: LightFrames, edges: MeshEdges, pixel: np.nd
     _lift_queries(rows_of(wide.uv), np.ascontiguousarray(wide.count[rows], np.int64),
                   np.ascontiguousarray(light[rows], np.int64), rows_of(near), rows_of(lift),
                   rows_of(surface.geometric_normal[pixel]), rows_of(surface.shading_normal[pixel]),
-                  rows_of(surface.lift_cutoff[pixel]), np.ascontiguousarray(surface.index_triangle[pixel[rows]], np.int64),
-                  frames.origin, frames.tangent, frames.bitangent, polygon, count, start, end, low, high, uv_low,
+                  rows_of(surface.lift_cutoff[pixel]),
+                  np.ascontiguousarray(surface.index_triangle[pixel[rows]], np.int64), frames.origin, frames.tangent, frames.bitangent, polygon, count, start, end, low, high, uv_low,
                   uv_high, skipped, largest)
     query_light, query_side = np.repeat(light[rows], 2), np.repeat(wide.side[rows], 2)
     height = np.repeat(np.maximum(height_near[rows], height_far[rows]), 2)
