@@ -101,7 +101,7 @@ def terminator_couples(surface, frames: LightFrames, couples: ReceiverLight, cou
     origin its mean amount gives: the pieces of a couple's strips add up to its light's. Where no edge's arc
     crosses the light from any origin of the segment the lift spans (``detection.segment_may_cross`` over the
     scene's ``edges``; None: not tested), every strip would see what one origin sees: the couple stays one
-    strip, its whole light seen from the origin of its mean amount.
+    strip, its whole light seen from the origin of the largest amount its directions take.
 
     Parameters: the batch's ``couples`` and ``couple_pixel`` (``couples_for``) of the lights ``lights``
     (L,) bool. Returns the couples to work out and integrate (each strip a couple of its own), their
@@ -135,10 +135,9 @@ def terminator_couples(surface, frames: LightFrames, couples: ReceiverLight, cou
     # whole or not at all from every such origin, one strip seen from the largest amount's. The others are cut.
     crossed, largest = _arcs_may_cross(surface, frames, edges, pixel, wide) if edges is not None else \
         (np.ones(len(pixel), bool), np.ones(len(pixel)))
-    whole = ~crossed
-    cut = _strips(wide, frames, normals, raw, np.flatnonzero(~whole))
-    if whole.any():
-        rows = np.flatnonzero(whole)
+    cut = _strips(wide, frames, normals, raw, np.flatnonzero(crossed))
+    if not crossed.all():
+        rows = np.flatnonzero(~crossed)
         one = (rows, wide.uv[rows], wide.count[rows], largest[rows])  # seen from the largest amount's origin
         width = max(cut[1].shape[1], one[1].shape[1])
         cut = tuple(np.concatenate([pad_to(mine, width), pad_to(theirs, width)]) if mine.ndim == 3 else
@@ -210,8 +209,8 @@ def _arcs_may_cross(surface, frames: LightFrames, edges: MeshEdges, pixel: np.nd
                   np.ascontiguousarray(light[rows], np.int64), rows_of(near), rows_of(lift),
                   rows_of(surface.geometric_normal[pixel]), rows_of(surface.shading_normal[pixel]),
                   rows_of(surface.lift_cutoff[pixel]),
-                  np.ascontiguousarray(surface.index_triangle[pixel[rows]], np.int64), frames.origin, frames.tangent, frames.bitangent, polygon, count, start, end, low, high, uv_low,
-                  uv_high, skipped, largest)
+                  np.ascontiguousarray(surface.index_triangle[pixel[rows]], np.int64), frames.origin, frames.tangent,
+                  frames.bitangent, polygon, count, start, end, low, high, uv_low, uv_high, skipped, largest)
     query_light, query_side = np.repeat(light[rows], 2), np.repeat(wide.side[rows], 2)
     height = np.repeat(np.maximum(height_near[rows], height_far[rows]), 2)
     hulls = hull_table(frames, low, high, query_light, query_side, height, uv_low, uv_high)
