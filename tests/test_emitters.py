@@ -319,7 +319,8 @@ def test_other_geometry_inside_a_non_convex_emitter_keeps_it_one_light_per_face(
     """A box inside the torus' hole may stand behind the emitter along a ray, which the two lights cannot
     tell: the emitter stays one light per triangle, with one warning, and the image is the exact one: the
     reference integrator's, at any batch size (a pixel on the box's top once came out 9.42 instead of 0.072
-    at one batch size: sub-groups of receivers dropped an edge, ``silhouettes.SUB_POINTS``)."""
+    with detection's sub-groups of 4 receivers, ``silhouettes.SUB_POINTS``: torus faces clipped to a point or a
+    segment by the box top's horizon kept every edge as an arc, ``geometry.negligible_lights``)."""
     emitter = torus_triangles(tilt=0.0)
     plug = box_triangles((0.1, 0.0, 1.6), 0.15, 0.1)
     scene = emitter_over_floor(emitter, grouped=True, extra=plug)

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from lazyvis_addon.core.geometry import (blocker_in_front_of_light, clip_convex, cones_overlap, polygon_area_2d,
-                                         projected_solid_angle, split_convex)
+from lazyvis_addon.core.geometry import (NEGLIGIBLE_SOLID_ANGLE, blocker_in_front_of_light, clip_convex, cones_overlap,
+                                         negligible_lights, polygon_area_2d, projected_solid_angle, split_convex)
 
 SQUARE = np.array([[0.5, -0.5, 1.0], [0.5, 0.5, 1.0], [-0.5, 0.5, 1.0], [-0.5, -0.5, 1.0]])
 
@@ -223,3 +223,28 @@ def test_short_edges_take_the_series_and_agree_with_the_arctangent_form():
             assert got == pytest.approx(disk, rel=2e-3)
         branches.append((sine < SHORT_EDGE_SINE).all())
     assert branches == [True, True, True, False, False]  # both branches are exercised
+
+
+def test_negligible_lights_are_those_whose_solid_angle_bound_is_below_the_threshold():
+    """A clipped light of area a at distance h subtends at most a / h^2: a polygon whose bound is under
+    NEGLIGIBLE_SOLID_ANGLE (a light clipped to a segment or a point) is negligible, one just above it is
+    not, at any height and either side of the plane, and the bound is never below the true solid angle."""
+    square = SQUARE[:, :2]                                           # area 1
+    segment = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [2.0, 0.0]])   # padded, collinear
+    point = np.array([[0.3, 0.3], [0.3 + 1e-15, 0.3], [0.3, 0.3 + 1e-15], [0.3, 0.3 + 1e-15]])
+    height = np.array([1.0, -1.0, 0.01, 1.0, 1.0])
+    polygons = np.stack([square, square, square, segment, point])
+    assert negligible_lights(polygons, height).tolist() == [False, False, False, True, True]
+    for h in (0.01, 1.0, 30.0):
+        small = square * np.sqrt(0.5 * NEGLIGIBLE_SOLID_ANGLE) * h   # area half the threshold times h^2
+        large = square * np.sqrt(2.0 * NEGLIGIBLE_SOLID_ANGLE) * h
+        assert negligible_lights(np.stack([small, large]), np.array([h, -h])).tolist() == [True, False]
+    # The bound holds: the unit square's solid angle seen from above its centre at heights 0.2 .. 5.
+    for h in (0.2, 1.0, 5.0):
+        corners = np.concatenate([SQUARE[:, :2], np.full((4, 1), h)], axis=1)
+        unit = corners / np.linalg.norm(corners, axis=1, keepdims=True)
+        # Van Oosterom and Strackee's formula over the fan of two triangles.
+        omega = 0.0
+        for a, b, c in ((unit[0], unit[1], unit[2]), (unit[0], unit[2], unit[3])):
+            omega += 2 * np.arctan2(abs(np.dot(a, np.cross(b, c))), 1 + a @ b + b @ c + c @ a)
+        assert omega <= 1.0 / h ** 2

@@ -297,6 +297,24 @@ def polygon_area_2d(uv: np.ndarray) -> np.ndarray:
     return 0.5 * np.sum(uv[..., 0] * nxt[..., 1] - nxt[..., 0] * uv[..., 1], axis=1)
 
 
+# A clipped light subtending at most this solid angle (steradians) gives less than this share of its radiance,
+# far below a pixel's precision. Such a light is a point or a segment up to rounding (a light clipped to the
+# receiver's horizon along one of its edges, or to one of its corners), and its cone's planes are not planes
+# at all: detection's arc test kept every edge it was given there, whose arcs made up a visible region of
+# their own (a box inside a torus emitter's hole, a light per face: 9.42 where the reference gives 0.072).
+NEGLIGIBLE_SOLID_ANGLE = 1e-12
+
+
+def negligible_lights(uv: np.ndarray, height: np.ndarray) -> np.ndarray:
+    """Which clipped lights subtend at most NEGLIGIBLE_SOLID_ANGLE from their receivers: (N,) bool.
+
+    uv : (N, K, 2) float64   the lights' padded (u, v) polygons in their planes (m).
+    height : (N,) float64    each receiver's distance from its light's plane (m; of either sign).
+
+    A region of area a whose points all lie at distance |height| or more subtends at most a / height^2."""
+    return np.abs(polygon_area_2d(uv)) <= NEGLIGIBLE_SOLID_ANGLE * height * height
+
+
 def pad_to(points: np.ndarray, width: int) -> np.ndarray:
     """Pad (M, K, D) polygons to K = width by repeating the last column (already the last vertex)."""
     if points.shape[1] >= width:

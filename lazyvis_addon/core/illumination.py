@@ -23,8 +23,8 @@ from .bsdf import SurfaceBsdf
 from .emitters import FACING_HULL, taken_hull_planes
 from .facing import _gauss_triangle, direction_mask, direction_spread, spot_factors, spread_factors, taken_planes
 from .geometry import (PLANE_EPS, LightFrames, ReceiverLight, blocker_in_front_of_light, clip_convex, cone_planes,
-                       pad_to, plane_lines, polygon_area_2d, projected_solid_angle, projected_solid_angle_uv, receiver_light,
-                       split_convex, trim)
+                       negligible_lights, pad_to, plane_lines, polygon_area_2d, projected_solid_angle,
+                       projected_solid_angle_uv, receiver_light, split_convex, trim)
 from .ggx import (FRESNEL_BASIS_SIZE, ROUGHNESS_SQ_THRESHOLD, alpha_from_roughness, dielectric_blend, fresnel_basis,
                   ggx_reflection_pdf, sample_ggx_reflection)
 from .ltc import lobe_magnitudes, ltc_adjugate, ltc_frame, ltc_inverse_matrix, ltc_shape_integral
@@ -77,7 +77,8 @@ class VisiblePieces:
 
 def couples_for(surface: SurfacePoints, frames: LightFrames, exclude: np.ndarray | None = None
                 ) -> tuple[ReceiverLight, np.ndarray]:
-    """All lit (pixel, light) couples of a batch, ordered by (pixel, light).
+    """All lit (pixel, light) couples of a batch, ordered by (pixel, light): those whose clipped light is a
+    polygon subtending more than ``geometry.NEGLIGIBLE_SOLID_ANGLE``.
 
     exclude : (N, L) bool or None   couples to leave out (umbra).
     """
@@ -96,7 +97,7 @@ def couples_for(surface: SurfacePoints, frames: LightFrames, exclude: np.ndarray
         pixel, light = pixel[keep], light[keep]
     setup = receiver_light(surface.position[pixel], surface.geometric_normal[pixel], surface.shading_normal[pixel],
                            light, frames)
-    lit = setup.count >= 3
+    lit = (setup.count >= 3) & ~negligible_lights(setup.uv, setup.local[:, 2])
     keep = np.flatnonzero(lit)
     setup = ReceiverLight(setup.light[keep], trim(setup.uv[keep], setup.count[keep]), setup.count[keep],
                           setup.side[keep], setup.local[keep], setup.receiver_in_light[keep])

@@ -60,12 +60,15 @@ from .terminator import compile_terminator
 # a query's receivers share the walk down the edge tree, each sub-group dropping the nodes and edges that
 # are a silhouette nowhere in its box.
 GROUP_POINTS = 16
-# Sub-groups of 4 dropped an edge that one receiver needed (a box's top inside a torus emitter's hole, one
-# light per face: 9.42 where the reference gives 0.072, and only at some batch sizes; found 2026-12-05 when
-# the memory budget's share changed the batches): until the sub-group test is shown conservative each
-# couple is its own sub-group (its hull the tightest), which costs 3-6 % (boxes 512 px 2.39 -> 2.52 s,
-# suzanne_dense3 256 px 1.99 -> 2.11 s, tree 256 px 3.35 -> 3.45 s, chairs the same).
-SUB_POINTS = 1
+# Sub-groups of 4 once let through edges that one receiver's own hull dropped, and a box inside a torus
+# emitter's hole came out 9.42 where the reference gives 0.072 (2026-12-05): not a sub-group test dropping an
+# edge, as it seemed then, but couples whose clipped light was a point or a segment (a torus face seen along
+# the receiver's horizon), whose cone clips no arc, so that every edge given to the arc test was an arc.
+# Those lights are left out now (``geometry.negligible_lights``); with them gone the sub-groups of 4 find
+# the arcs each couple alone finds (the same images bit for bit: suzanne_dense3, floating_boxes, chapel at
+# 512 px) and are faster (one thread, alternating: suzanne_dense3 21.98 / 23.20 -> 21.06 / 21.20 s,
+# floating_boxes 5.61 / 5.72 -> 5.07 / 5.21 s; 8 no faster again).
+SUB_POINTS = 4
 # Arcs per chunk of couples whose detection, regions, depths, arrangement and integrals are worked out
 # together (about 7 MB of arcs).
 ARC_CHUNK = 1 << 16

@@ -26,7 +26,8 @@ from numba import njit
 
 from .detection import hull_table, segment_may_cross
 from .edge_tree import LEAF_EDGES, MeshEdges
-from .geometry import PLANE_EPS, LightFrames, ReceiverLight, clip_by_lines, pad_to, receiver_light, trim
+from .geometry import (PLANE_EPS, LightFrames, ReceiverLight, clip_by_lines, negligible_lights, pad_to, receiver_light,
+                       trim)
 
 
 def terminator_lift(corners: np.ndarray, normals: np.ndarray, u: np.ndarray, v: np.ndarray,
@@ -143,6 +144,11 @@ def terminator_couples(surface, frames: LightFrames, couples: ReceiverLight, cou
         cut = tuple(np.concatenate([pad_to(mine, width), pad_to(theirs, width)]) if mine.ndim == 3 else
                     np.concatenate([mine, theirs]) for mine, theirs in zip(cut[:4], one[:4]))
     owner, strip_uv, strip_count, strip_amount = cut[:4]
+    # A strip cut off at a vertex of its light can be a sliver of no area: left out as ``couples_for`` leaves
+    # out such lights.
+    kept = ~negligible_lights(strip_uv, wide.local[owner, 2])
+    if not kept.all():
+        owner, strip_uv, strip_count, strip_amount = owner[kept], strip_uv[kept], strip_count[kept], strip_amount[kept]
     strip = ReceiverLight(wide.light[owner], strip_uv, strip_count, wide.side[owner], wide.local[owner],
                           wide.receiver_in_light[owner])
     # The couples that stay, then the strips of those that move.
