@@ -234,11 +234,15 @@ def test_negligible_lights_are_those_whose_solid_angle_bound_is_below_the_thresh
     point = np.array([[0.3, 0.3], [0.3 + 1e-15, 0.3], [0.3, 0.3 + 1e-15], [0.3, 0.3 + 1e-15]])
     height = np.array([1.0, -1.0, 0.01, 1.0, 1.0])
     polygons = np.stack([square, square, square, segment, point])
-    assert negligible_lights(polygons, height).tolist() == [False, False, False, True, True]
+    assert negligible_lights(polygons, np.full(5, 4), height).tolist() == [False, False, False, True, True]
+    # Only the first ``count`` vertices count: the square's first two are a segment, its first three half of it.
+    assert negligible_lights(np.stack([square, square]), np.array([2, 3]), np.array([1.0, 1.0])).tolist() == \
+        [True, False]
     for h in (0.01, 1.0, 30.0):
         small = square * np.sqrt(0.5 * NEGLIGIBLE_SOLID_ANGLE) * h   # area half the threshold times h^2
         large = square * np.sqrt(2.0 * NEGLIGIBLE_SOLID_ANGLE) * h
-        assert negligible_lights(np.stack([small, large]), np.array([h, -h])).tolist() == [True, False]
+        assert negligible_lights(np.stack([small, large]), np.array([4, 4]), np.array([h, -h])).tolist() == \
+            [True, False]
     # The bound holds: the unit square's solid angle seen from above its centre at heights 0.2 .. 5.
     for h in (0.2, 1.0, 5.0):
         corners = np.concatenate([SQUARE[:, :2], np.full((4, 1), h)], axis=1)

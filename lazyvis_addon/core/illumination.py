@@ -97,7 +97,7 @@ def couples_for(surface: SurfacePoints, frames: LightFrames, exclude: np.ndarray
         pixel, light = pixel[keep], light[keep]
     setup = receiver_light(surface.position[pixel], surface.geometric_normal[pixel], surface.shading_normal[pixel],
                            light, frames)
-    lit = (setup.count >= 3) & ~negligible_lights(setup.uv, setup.local[:, 2])
+    lit = (setup.count >= 3) & ~negligible_lights(setup.uv, setup.count, setup.local[:, 2])
     keep = np.flatnonzero(lit)
     setup = ReceiverLight(setup.light[keep], trim(setup.uv[keep], setup.count[keep]), setup.count[keep],
                           setup.side[keep], setup.local[keep], setup.receiver_in_light[keep])

@@ -146,7 +146,7 @@ def terminator_couples(surface, frames: LightFrames, couples: ReceiverLight, cou
     owner, strip_uv, strip_count, strip_amount = cut[:4]
     # A strip cut off at a vertex of its light can be a sliver of no area: left out as ``couples_for`` leaves
     # out such lights.
-    kept = ~negligible_lights(strip_uv, wide.local[owner, 2])
+    kept = ~negligible_lights(strip_uv, strip_count, wide.local[owner, 2])
     if not kept.all():
         owner, strip_uv, strip_count, strip_amount = owner[kept], strip_uv[kept], strip_count[kept], strip_amount[kept]
     strip = ReceiverLight(wide.light[owner], strip_uv, strip_count, wide.side[owner], wide.local[owner],
