@@ -9,7 +9,8 @@ def test_cached_kernels_are_dropped_when_any_source_changes_and_kept_otherwise(t
     helper.write_text("def g(): return 1\n")
     cache = tmp_path / "__pycache__"
     cache.mkdir()
-    kernel = [cache / "detection._detect-1.py311.nbi", cache / "detection._detect-1.py311.1.nbc"]
+    kernel = [cache / "detection._detect-1.py311.nbi", cache / "detection._detect-1.py311.1.nbc",
+              cache / "lazyvis_kernels_detection.ok"]  # and ``kernels``' mark of the group
     for path in kernel:
         path.write_bytes(b"compiled")
     assert drop_stale_kernels(tmp_path)                      # no stamp yet: built from unknown sources

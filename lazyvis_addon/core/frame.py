@@ -27,7 +27,7 @@ from .scene import LOBES_ALL, Camera, Scene
 from .settings import Settings
 from .shading import (MIN_SHARED_BATCH, clamped_caps, illuminate, near_hull_misses, warn_clamped_caps,
                       warn_near_hulls)
-from .silhouettes import compile_kernels
+from .kernels import compile_kernels, groups_for
 from .surface import SurfacePoints, shade_hits
 
 
@@ -192,15 +192,15 @@ def silhouette_frame(scene: Scene, tracer, extent: float, frames, settings: Sett
     n_pixels = height * width
     x0, y0, x1, _ = camera.window
     if edges is None:
+        # Numba compiles pass 2's kernels on a machine's first render (``kernels``), then its cache serves
+        # them in milliseconds: a stage of its own, so the wait is named and timed, and first, as the edge
+        # tree's build runs some of them.
+        progress.begin_stage("Compiling kernels")
+        stats["kernels_compiled"] = compile_kernels(groups_for(scene), progress.check_cancel)
         progress.begin_stage("Building edge tree")
         edges = MeshEdges.from_triangles(scene.triangles, frames, progress.check_cancel)
         progress.end_stage()
         stats["edge_records"] = len(edges)
-        # Numba compiles pass 2's kernels on a machine's first render (about 10 s), then its cache serves
-        # them in milliseconds: a stage of its own, so the wait is named and timed.
-        progress.begin_stage("Compiling kernels")
-        stats["kernels_compiled"] = compile_kernels()
-        progress.end_stage()
 
     rows_per_band = band_rows_for(settings.memory_budget_mb, width)
     # The frame's own arrays (FRAME_PIXEL_BYTES): what anti-aliasing reads of the centres (emission only

@@ -15,6 +15,7 @@ import hashlib
 from pathlib import Path
 
 STAMP_NAME = "lazyvis_sources.sha1"
+GROUP_STAMPS = "lazyvis_kernels_*.ok"  # ``kernels``' marks of groups compiled into this cache
 
 
 def sources_digest(package: Path) -> str:
@@ -27,16 +28,17 @@ def sources_digest(package: Path) -> str:
 
 
 def drop_stale_kernels(package: Path) -> bool:
-    """Delete Numba's cache files (``*.nbi``, ``*.nbc``) in ``package/__pycache__`` when the sources' digest
-    differs from the one stored there, and store the new one. Returns whether files were dropped. A
-    cache folder that cannot be read or written is left alone (Numba then caches elsewhere or not at all)."""
+    """Delete Numba's cache files (``*.nbi``, ``*.nbc``) and ``kernels``' group stamps in
+    ``package/__pycache__`` when the sources' digest differs from the one stored there, and store the new
+    one. Returns whether files were dropped. A cache folder that cannot be read or written is left alone
+    (Numba then caches elsewhere or not at all)."""
     cache = package / "__pycache__"
     stamp = cache / STAMP_NAME
     try:
         current = sources_digest(package)
         if stamp.is_file() and stamp.read_text().strip() == current:
             return False
-        stale = [*cache.glob("*.nbi"), *cache.glob("*.nbc")] if cache.is_dir() else []
+        stale = [*cache.glob("*.nbi"), *cache.glob("*.nbc"), *cache.glob(GROUP_STAMPS)] if cache.is_dir() else []
         for path in stale:
             path.unlink(missing_ok=True)
         cache.mkdir(exist_ok=True)

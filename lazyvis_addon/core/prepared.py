@@ -22,7 +22,7 @@ from .geometry import light_frames
 from .progress import Progress
 from .scene import Scene
 from .settings import Settings
-from .silhouettes import compile_kernels
+from .kernels import compile_kernels, groups_for
 from .surface import scene_centre, scene_extent
 from .trace import RayTracer
 
@@ -224,12 +224,13 @@ def prepare(scene: Scene, settings: Settings | None = None, progress: Progress |
             frame_warnings = progress.warnings[before:]
             edges, kernels_compiled = None, False
             if silhouettes:
+                # Numba compiles pass 2's kernels on a machine's first render (``kernels``), then its cache
+                # serves them in milliseconds: a stage of its own, so the wait is named and timed, and
+                # first, as the edge tree's build runs some of them.
+                progress.begin_stage("Compiling kernels")
+                kernels_compiled = compile_kernels(groups_for(validated), progress.check_cancel)
                 progress.begin_stage("Building edge tree")
                 edges = MeshEdges.from_triangles(validated.triangles, frames, progress.check_cancel)
-                # Numba compiles pass 2's kernels on a machine's first render (about 10 s), then its cache
-                # serves them in milliseconds: a stage of its own, so the wait is named and timed.
-                progress.begin_stage("Compiling kernels")
-                kernels_compiled = compile_kernels()
         progress.end_stage()
     except BaseException:
         shared.release()

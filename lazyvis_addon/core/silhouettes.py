@@ -42,19 +42,12 @@ from numba import njit
 from . import arrangement as arrangement_module
 from .arcs import Arcs, _cone_planes, _sort_by_couple
 from .blockers import _union_find
-from .arrangement import compile_arrangement, jumps_between, visible_fans
-from .emitters import compile_emitters
-from .facing import compile_facing
-from .detection import HULL_WIDTH, _hull_rows, compile_detection, detect_arcs, hull_table
-from .edge_tree import LEAF_EDGES, MeshEdges, _morton, compile_edge_tree
-from .geometry import (_REFERENCE_WEIGHTS, LightFrames, ReceiverLight, _reference_points,
-                       compile_geometry, polygon_bounds, reference_points, trim)
-from .ggx import compile_ggx
-from .illumination import compile_illumination
-from .regions import compile_regions, couple_regions
-from .rng import compile_rng
-from .antialias import compile_antialias
-from .terminator import compile_terminator
+from .arrangement import jumps_between, visible_fans
+from .detection import HULL_WIDTH, _hull_rows, detect_arcs, hull_table
+from .edge_tree import LEAF_EDGES, MeshEdges, _morton
+from .geometry import (_REFERENCE_WEIGHTS, LightFrames, ReceiverLight, _reference_points, polygon_bounds,
+                       reference_points, trim)
+from .regions import couple_regions
 
 # Receivers per detection query (neighbours in a Morton order of their positions), and per sub-group:
 # a query's receivers share the walk down the edge tree, each sub-group dropping the nodes and edges that
@@ -200,13 +193,9 @@ def _step_depth_rays(active, going, triangle, t, own, full, light, planes, n_tri
 # The door: visible pieces of a batch of receivers
 # ------------------------------------------------------------------------------------------------------
 
-def compile_kernels() -> bool:
-    """Make pass 2's compiled kernels ready: Numba compiles them on a machine's first render (about 20 s
-    here) and writes them to its cache (``__pycache__`` beside the modules, or a per-user folder where that
-    is read-only); afterwards this loads them in a fraction of a second. Returns whether any had to be
-    compiled."""
-    detection_kernels = compile_detection()
-    compile_arrangement()
+def compile_silhouettes() -> tuple:
+    """Compile this module's kernels and those it calls from ``arcs`` (or load them from Numba's cache);
+    returns them. (``kernels.compile_kernels`` is the door that compiles every group a render needs.)"""
     _cone_planes(np.zeros((1, 3, 3)), np.zeros(1, np.int64), np.empty((1, 3, 3)), np.empty((1, 3), np.bool_))
     Arcs.empty().by_couple(1)
     one_row, no_planes = np.zeros(1, np.int64), np.zeros(0, np.int64)
@@ -224,12 +213,9 @@ def compile_kernels() -> bool:
     _fan_triangles_kernel(np.zeros(1, np.int64), np.zeros(1, np.int64), three, three, three, three,
                           np.zeros((1, 2)), three, three, np.empty((1, 3, 2)))
     _union_find(np.zeros(1, np.int64), np.zeros(1, np.int64), 1)  # anti-aliasing's surfaces
-    kernels = (*detection_kernels, _union_find, *compile_regions(), arrangement_module._fans,
-               arrangement_module._jumps, _cone_planes, _sort_by_couple, _gather_depth_rays, _step_depth_rays,
-               _bounding_cones, _reference_points, _hull_rows, *compile_edge_tree(), *compile_rng(),
-               *compile_illumination(), *compile_ggx(), _fan_triangles_kernel, *compile_geometry(),
-               *compile_terminator(), *compile_facing(), *compile_emitters(), *compile_antialias())
-    return any(kernel.stats.cache_misses for kernel in kernels)
+    return (_union_find, arrangement_module._fans, arrangement_module._jumps, _cone_planes, _sort_by_couple,
+            _gather_depth_rays, _step_depth_rays, _bounding_cones, _reference_points, _hull_rows,
+            _fan_triangles_kernel)
 
 
 # Bytes of pass 2's per-couple temporaries per vertex of the clipped light (its cone, its directions, the

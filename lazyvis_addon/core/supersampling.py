@@ -30,7 +30,7 @@ from .progress import Progress
 from .scene import Scene
 from .settings import Settings
 from .shading import illuminate, shade_verified
-from .silhouettes import compile_kernels
+from .kernels import compile_kernels, groups_for
 from .surface import SurfacePoints, albedo_scaled_materials, has_albedo_scaled
 
 
@@ -218,9 +218,8 @@ def _frame_scale(scene: Scene, tracer, extent: float, frames, settings: Settings
     def silhouette_edges() -> MeshEdges:
         if edges is not None:
             return edges
-        built = MeshEdges.from_triangles(scene.triangles, frames, progress.check_cancel)
-        compile_kernels()
-        return built
+        compile_kernels(groups_for(scene), progress.check_cancel)
+        return MeshEdges.from_triangles(scene.triangles, frames, progress.check_cancel)
 
     if probe is None:
         if camera.window == full:
