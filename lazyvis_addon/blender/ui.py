@@ -7,7 +7,6 @@ Material and World panels replace the ones that do not fit.
 
 from __future__ import annotations
 
-import math
 
 import bpy
 
