@@ -105,6 +105,26 @@ def test_every_step_equals_a_plain_render_at_its_resolution_and_the_last_the_ful
     assert not np.array_equal(images[-2].image, images[-1].image)
 
 
+@pytest.mark.parametrize("visibility", ["silhouettes", "blocker_map"])
+def test_the_full_plain_image_comes_from_the_final_render_by_silhouettes(visibility):
+    """By silhouettes the final render hands over its centres before it anti-aliases: the full resolution is
+    rendered once. The blocker map's anti-aliasing changes its centres (the extended flood fill): there the
+    plain full step is a render of its own."""
+    scene = demo_scenes.floating_boxes(resolution=40, n_boxes=8)
+    settings = Settings(aa_samples=4, visibility=visibility)
+    recorder = _Slow()
+    images = []
+    renderer = ProgressiveRenderer(on_image=images.append, render_function=recorder)
+    renderer.start(scene, settings)
+    assert renderer.wait(600.0) and renderer.error is None
+    renderer.close()
+    assert [(image.divisor, image.final) for image in images] == [(8, False), (4, False), (2, False), (1, False),
+                                                                  (1, True)]
+    assert recorder.calls == ([5, 10, 20, 40] if visibility == "silhouettes" else [5, 10, 20, 40, 40])
+    plain = render(scene, settings.replace(aa_samples=1))
+    np.testing.assert_array_equal(images[-2].image, plain.combined)
+
+
 class _Slow:
     """A render function that signals when a render starts and counts the calls (the render itself is the
     real one)."""

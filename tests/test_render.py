@@ -11,7 +11,7 @@ import time
 import numpy as np
 import pytest
 
-from lazyvis_addon.core import Camera, Lights, Materials, Progress, RenderCancelled, Scene, Settings, render
+from lazyvis_addon.core import Camera, Lights, Materials, Progress, RenderCancelled, Scene, SeenLights, Settings, render
 from lazyvis_addon.core import demo_scenes, illumination
 from lazyvis_addon.core.blocker_map import BlockerMap, detect_seeds, reference_blocker_map
 from lazyvis_addon.core.blockers import BlockerPolygons
@@ -904,3 +904,42 @@ def test_image_texture_replaces_the_albedo_and_survives_npz(tmp_path):
     scene.save_npz(tmp_path / "textured.npz")
     again = render(Scene.load_npz(tmp_path / "textured.npz"), CENTRES).combined[..., 0]
     np.testing.assert_array_equal(again, textured)
+
+
+class _Previews(Progress):
+    wants_preview = True
+
+    def __init__(self):
+        super().__init__()
+        self.images = []
+
+    def on_preview(self, output):
+        self.images.append((output, dict(self.stage_seconds)))
+
+
+@pytest.mark.parametrize("window", [None, (9, 6, 31, 27)])
+def test_the_preview_before_anti_aliasing_is_the_plain_render_bit_for_bit(window):
+    """``Progress.on_preview``: a render that anti-aliases first hands over its pixel centres, cut to the
+    window asked for (a border renders a margin) with the lights the camera sees drawn as a render at
+    aa_samples=1 draws them; the render then returns its anti-aliased image as without the hook."""
+    scene = demo_scenes.floating_boxes(resolution=40, n_boxes=8)
+    seen = SeenLights.area((0.0, 0.0, 2.6), (0.4, 0, 0), (0, 0.3, 0), np.array([3.0, 2.0, 1.0]))
+    camera = scene.camera if window is None else dataclasses.replace(scene.camera, window=window)
+    scene = dataclasses.replace(scene, camera=camera, seen=seen)
+    settings = Settings(aa_samples=4)
+    progress = _Previews()
+    final = render(scene, settings, progress)
+    plain = render(scene, settings.replace(aa_samples=1))
+    assert len(progress.images) == 1
+    preview, stages = progress.images[0]
+    assert "Anti-aliasing" not in stages and preview.stats["pixels"] == plain.combined.shape[0] * plain.combined.shape[1]
+    for name in ("combined", "sample_count", "depth", "normal", "blocker_count"):
+        np.testing.assert_array_equal(getattr(preview, name), getattr(plain, name), err_msg=name)
+    np.testing.assert_array_equal(final.combined, render(scene, settings).combined)
+    assert not np.array_equal(final.combined, plain.combined)  # anti-aliasing did change pixels
+    # No preview where nothing anti-aliases, where no front end asks, or from the blocker map (whose centres
+    # come from the flood fill extended for anti-aliasing: not a plain render's).
+    for quiet in (settings.replace(aa_samples=1), settings.replace(visibility="blocker_map")):
+        progress = _Previews()
+        render(scene, quiet, progress)
+        assert progress.images == []

@@ -45,13 +45,31 @@ def render_passes(view_layer):
 observers: list[Progress] = []
 
 
+def showing_previews() -> bool:
+    """Whether a render's image before anti-aliasing is shown: in Blender's render window, not in a
+    background render (``blender -b``, the command line, a farm), where nobody sees it and its copy of the
+    frame would only cost memory."""
+    return not bpy.app.background
+
+
 class EngineProgress(Progress):
-    """Core progress shown in Blender's render window; Esc cancels through ``test_break``."""
+    """Core progress shown in Blender's render window; Esc cancels through ``test_break``. Once the scene
+    is exported (``result_target``), the image before anti-aliasing goes into the render result too, so the
+    render window shows the pixel centres while anti-aliasing refines them."""
 
     def __init__(self, engine: bpy.types.RenderEngine) -> None:
         super().__init__()
         self.engine = engine
         self._shown = 0.0
+        self.result_target = None  # (view layer, window): where ``on_preview`` writes
+
+    @property
+    def wants_preview(self) -> bool:
+        return self.result_target is not None and showing_previews()
+
+    def on_preview(self, output) -> None:
+        view_layer, window = self.result_target
+        write_result(self.engine, view_layer, window, output)
 
     def on_stage(self, name: str, total: int) -> None:
         self.engine.update_stats("", f"LazyVis | {name}")
@@ -111,6 +129,8 @@ def render_frame(engine: bpy.types.RenderEngine, depsgraph, preview: bool = Fals
                                     resolution=(engine.resolution_x, engine.resolution_y),
                                     disk_vertices=scene.lazyvis.disk_vertices)
         progress.end_stage()
+        if not preview:
+            progress.result_target = (view_layer, exported.scene.camera.window)
         output = core_render(exported.scene, settings, progress)
         write_result(engine, view_layer, exported.scene.camera.window, output)
     except RenderCancelled:

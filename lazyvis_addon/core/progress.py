@@ -88,6 +88,16 @@ class Progress:
         self._stop.set()
 
     # -- overridden by front ends ------------------------------------------------------------------
+    # Whether the render hands ``on_preview`` its image before anti-aliasing (a copy of the frame's passes,
+    # so it costs only where a front end shows it).
+    wants_preview = False
+
+    def on_preview(self, output) -> None:
+        """The image before anti-aliasing, a ``RenderOutput`` of the window asked for: every pixel its centre
+        sample, the image a render at ``aa_samples=1`` gives, bit for bit. Called by a render that
+        anti-aliases by silhouettes (the default visibility) when ``wants_preview`` is True, on the
+        thread that called ``render``."""
+
     def on_stage(self, name: str, total: int) -> None:
         pass
 

@@ -4,7 +4,8 @@ Blender's viewport asks for an image after every change (a light moved, the view
 the scene again at a start resolution (``START_RESOLUTION`` pixels along the longer side: 1/32 of a
 1280 x 720 view), halving the divisor down to 1/8, then 1/4, 1/2 and full, each without anti-aliasing
 (every pixel its centre sample), then the full resolution at the render's own settings: the last image is
-the F12 render of the same view. Each step is a plain ``render.render`` of the scene with its camera at
+the F12 render of the same view. Where that render anti-aliases by silhouettes, the full-resolution image
+without anti-aliasing is its own pixel centres, handed over before it anti-aliases (``previewed``). Each step is a plain ``render.render`` of the scene with its camera at
 that resolution (``scaled_camera``): a pixel of a coarse image is ``divisor`` x ``divisor`` viewport pixels
 and lies where they do, so the viewport draws it scaled up in place.
 
@@ -99,10 +100,12 @@ def step_divisors(width: int = 0, height: int = 0) -> tuple[int, ...]:
 
 def refinement_steps(settings: Settings, width: int = 0, height: int = 0, pixel_size: int = 1
                      ) -> list[tuple[int, Settings, bool]]:
-    """(divisor, settings, final) of each step of a ``width`` x ``height`` view: ``step_divisors`` without
+    """(divisor, settings, final) of each image of a ``width`` x ``height`` view: ``step_divisors`` without
     anti-aliasing down to ``pixel_size`` (Blender's viewport Pixel Size: the finest step has pixels that
     many viewport pixels wide), then that resolution at ``settings`` (with their anti-aliasing; a render
-    without it ends at the plain finest step)."""
+    without it ends at the plain finest step). Each image is a plain render of its divisor and settings,
+    except that the finest plain image comes from the final render itself where it anti-aliases by
+    silhouettes (``previewed``)."""
     pixel_size = max(int(pixel_size), 1)
     plain = settings.replace(aa_samples=1)
     divisors = [divisor for divisor in step_divisors(width, height) if divisor > pixel_size] + [pixel_size]
@@ -114,15 +117,31 @@ def refinement_steps(settings: Settings, width: int = 0, height: int = 0, pixel_
     return steps
 
 
+def previewed(settings: Settings) -> bool:
+    """Whether the final render at ``settings`` gives the finest plain image on its way
+    (``Progress.on_preview``: its pixel centres before anti-aliasing), so that step is not rendered on its
+    own: it shaded every centre again, half the time to the final image on the floating boxes."""
+    return settings.aa_samples > 1 and settings.uses_silhouettes
+
+
 class _Cancellable(Progress):
-    """The core's progress object of one progressive render: it cancels when its event is set."""
+    """The core's progress object of one progressive render: it cancels when its event is set, and hands a
+    render's image before anti-aliasing to ``preview`` where that is set."""
 
     def __init__(self, stop: threading.Event) -> None:
         super().__init__()
         self.stop = stop
+        self.preview: Callable | None = None
 
     def is_cancelled(self) -> bool:
         return self.stop.is_set()
+
+    @property
+    def wants_preview(self) -> bool:
+        return self.preview is not None
+
+    def on_preview(self, output) -> None:
+        self.preview(output)
 
 
 class ProgressiveRenderer:
@@ -246,17 +265,24 @@ class ProgressiveRenderer:
                 if base is not None:
                     base.release()
                     base = None
+            if previewed(settings):  # the final render shows the plain step before it
+                steps = steps[:-2] + steps[-1:]
             for divisor, step_settings, final in steps:
                 step_scene = replace(scene, camera=scaled_camera(scene.camera, divisor))
-                output = self.render_function(step_scene, step_settings, progress, prepared=prepared)
-                image = ViewportImage(output.combined, divisor, step_scene.camera.window, final, generation,
-                                      time.perf_counter() - started)
-                with self._lock:
-                    if stop.is_set() or generation != self._generation:
-                        return
-                    self._latest = image
-                if self.on_image is not None:
-                    self.on_image(image)
+                window = step_scene.camera.window
+
+                def show(output, final: bool = False) -> None:
+                    image = ViewportImage(output.combined, divisor, window, final, generation,
+                                          time.perf_counter() - started)
+                    with self._lock:
+                        if stop.is_set() or generation != self._generation:
+                            raise RenderCancelled("a newer start")
+                        self._latest = image
+                    if self.on_image is not None:
+                        self.on_image(image)
+
+                progress.preview = show if final and previewed(settings) else None
+                show(self.render_function(step_scene, step_settings, progress, prepared=prepared), final)
         except RenderCancelled:
             return
         except (ValueError, MemoryError) as error:  # bad input and budgets: the core's own messages

@@ -103,6 +103,13 @@ def _render_prepared(prepared: PreparedScene, camera: Camera, settings: Settings
 
     resolved = None
     if settings.aa_samples > 1 and (frame.grid.index_triangle >= 0).any():
+        if progress.wants_preview and settings.uses_silhouettes:
+            # The centres before anti-aliasing writes its pixels over them. (The blocker map's centres
+            # come from the extended flood fill with anti-aliasing on: not a plain render's.)
+            preview = replace(frame.output, combined=frame.output.combined.copy(),
+                              sample_count=frame.output.sample_count.copy())
+            preview = _delivered(preview, scene, wanted_window, settings.replace(aa_samples=1), tracer, progress)
+            progress.on_preview(_with_stats(preview, stats, tracer, rays_before, started, progress))
         resolved = antialias_frame(scene, tracer, extent, frames, settings, progress, stats, pixel_global, frame,
                               wanted_window)
     output = frame.output
@@ -110,23 +117,36 @@ def _render_prepared(prepared: PreparedScene, camera: Camera, settings: Settings
         pixels, pooled, counts = resolved
         output.combined.reshape(-1, 4)[pixels] = pooled
         output.sample_count.reshape(-1)[pixels] = counts
+    output = _delivered(output, scene, wanted_window, settings, tracer, progress)
+    return _with_stats(output, stats, tracer, rays_before, started, progress)
+
+
+def _delivered(output: RenderOutput, scene: Scene, wanted_window, settings: Settings, tracer, progress: Progress
+               ) -> RenderOutput:
+    """``output`` of the window ``scene``'s camera traced, cut to ``wanted_window`` (full-frame x0, y0, x1,
+    y1), with the lights the camera sees drawn over it: what the render returns."""
+    camera = scene.camera
     if camera.window != wanted_window:
         output = _cropped(output, camera.window, wanted_window)
-        scene = replace(scene, camera=replace(camera, window=wanted_window))
-        camera, pixel_global = scene.camera, global_pixels(scene.camera)
-        stats["pixels"] = len(pixel_global)
+        camera = replace(camera, window=wanted_window)
     if len(scene.seen):
         # Lights the camera sees add their radiance over whatever lies behind them (Cycles: a light is no
         # occluder for camera rays and adds no alpha).
-        reached, drawn, outlined = draw_seen_lights(scene.seen, camera, tracer, settings, pixel_global, progress)
+        reached, drawn, outlined = draw_seen_lights(scene.seen, camera, tracer, settings, global_pixels(camera),
+                                                    progress)
         output.combined.reshape(-1, 4)[reached, :3] += drawn.astype(np.float32)
         counts = output.sample_count.reshape(-1)
         counts[outlined] = np.maximum(counts[outlined], OUTLINE_SAMPLES)
-    stats["rays_cast"] = tracer.n_rays_cast - rays_before
-    stats["seconds"] = time.perf_counter() - started
-    stats["stage_seconds"] = dict(progress.stage_seconds)
-    stats["peak_memory_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-    output.stats = stats
+    return output
+
+
+def _with_stats(output: RenderOutput, stats: dict, tracer, rays_before: int, started: float, progress: Progress
+                ) -> RenderOutput:
+    """``output`` with the render's statistics so far and its warnings."""
+    output.stats = dict(stats, pixels=output.combined.shape[0] * output.combined.shape[1],
+                        rays_cast=tracer.n_rays_cast - rays_before, seconds=time.perf_counter() - started,
+                        stage_seconds=dict(progress.stage_seconds),
+                        peak_memory_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
     output.warnings = list(progress.warnings)
     return output
 

@@ -115,6 +115,31 @@ def test_border_render_places_the_window(scene, fake_core, tmp_path, crop):
         assert (combined[outside] == 0).all()
 
 
+@pytest.mark.parametrize("border", [False, True])
+def test_the_image_before_anti_aliasing_shows_then_gives_way_to_the_final(scene, monkeypatch, tmp_path, border):
+    """In the render window (not a background render) the core's preview is written into the result while
+    anti-aliasing runs; the final image replaces it everywhere (a border's window too)."""
+    asked = []
+
+    def render(scene, settings, progress):
+        asked.append(progress.wants_preview)
+        if progress.wants_preview:
+            preview = FakeOutput(scene.camera)
+            preview.combined = np.full_like(preview.combined, -7.0)
+            progress.on_preview(preview)
+        return FakeOutput(scene.camera)
+
+    monkeypatch.setattr(engine_module, "core_render", render)
+    simple_scene(scene)
+    scene.render.use_border = border
+    scene.render.border_min_x, scene.render.border_max_x = 0.25, 0.75
+    combined = render_to_exr(scene, tmp_path / "final.exr")["RGBA"]
+    assert asked == [False]  # tests render in the background: no preview asked for
+    monkeypatch.setattr(engine_module, "showing_previews", lambda: True)
+    assert (render_to_exr(scene, tmp_path / "previewed.exr")["RGBA"] == combined).all()
+    assert asked == [False, True] and (combined != -7.0).all()
+
+
 def test_border_of_any_fraction_matches_blenders_result(scene, fake_core):
     """Blender truncates border fraction x size computed in float32 (7/96 x 96 gives 7, not 6.9999...):
     the window must have exactly the render result's size for every border, or the render fails."""
