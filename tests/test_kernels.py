@@ -33,7 +33,8 @@ RENDER_AND_LIST = textwrap.dedent("""
     if sys.argv[1] == "lamp":
         scene.facing = FacingLights.point(np.array([0.0, 0.0, 3.0]), 0.3, 50.0, True)
     render(scene, Settings())
-    compiled = sorted({name.split(".")[-1] for name, module in sys.modules.items() if name.startswith("lazyvis_addon.core.")
+    compiled = sorted({name.split(".")[-1] for name, module in sys.modules.items()
+                       if name.startswith("lazyvis_addon.core.")
                        for value in vars(module).values() if isinstance(value, CPUDispatcher) and value.signatures})
     print(json.dumps({"needed": sorted(groups_for(scene)), "compiled": compiled}))
 """)

@@ -932,7 +932,7 @@ def test_the_preview_before_anti_aliasing_is_the_plain_render_bit_for_bit(window
     plain = render(scene, settings.replace(aa_samples=1))
     assert len(progress.images) == 1
     preview, stages = progress.images[0]
-    assert "Anti-aliasing" not in stages and preview.stats["pixels"] == plain.combined.shape[0] * plain.combined.shape[1]
+    assert "Anti-aliasing" not in stages and preview.stats["pixels"] == plain.combined[..., 0].size
     for name in ("combined", "sample_count", "depth", "normal", "blocker_count"):
         np.testing.assert_array_equal(getattr(preview, name), getattr(plain, name), err_msg=name)
     np.testing.assert_array_equal(final.combined, render(scene, settings).combined)

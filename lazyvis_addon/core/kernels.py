@@ -7,10 +7,10 @@ this 2-core machine (2026-12-07, one process: the arrangement 15.0 s, detection 
 
 - a render compiles only the groups its scene needs (``groups_for``): mesh emitters' and lamps' kernels only
   when the scene has them (the rest would still compile on a first call, just unannounced);
-- on a cold cache the groups are compiled by worker processes, one per core, each writing Numba's cache,
-  which this process then reads. Numba compiles under one global lock, so threads cannot share the work;
-  processes can. A worker that cannot start or fails leaves its groups to this process (as before: slower,
-  never wrong), and a cancel kills the workers at once.
+- on a cold cache the groups are compiled by worker processes, one per core (up to four), each writing
+  Numba's cache, which this process then reads. Numba compiles under one global lock, so threads cannot
+  share the work; processes can. A worker that cannot start or fails leaves its groups to this process
+  (as before: slower, never wrong), and a cancel kills the workers at once.
 
 A group compiled into the cache (by a worker or by this process) is marked by a stamp file beside Numba's
 cache (``__pycache__``) naming the sources' digest, Numba's version, Python's and the CPU's: a stamp that
@@ -69,6 +69,9 @@ for depth in range(len(above), 0, -1):
 importlib.import_module(name).compile_groups(sys.argv[3:])
 """
 _POLL_SECONDS = 0.05
+# At most this many workers: with four the largest group (the arrangement, a quarter of the work) already
+# bounds the wait, and each worker holds its own Numba and LLVM (about 200 MB).
+MAX_WORKERS = 4
 
 
 def groups_for(scene=None) -> frozenset[str]:
@@ -98,15 +101,16 @@ def compile_kernels(groups: Iterable[str] | None = None, check_cancel: Callable[
                     workers: int | None = None, python: str | None = None) -> bool:
     """Make the ``groups`` (default: all) ready, the door the render's stage *Compiling kernels* goes
     through. Groups whose stamp does not match are first compiled by up to ``workers`` processes (default:
-    one per core; 0: none, this process compiles) run by ``python`` (default: this interpreter), while
+    one per core, at most MAX_WORKERS; 0: none, this process compiles) run by ``python`` (default: this
+    interpreter), while
     ``check_cancel`` is called every 50 ms (what it raises kills the workers and is raised here). Then
     this process loads every group. Returns whether any kernel had to be compiled, here or by a worker."""
     names = sorted(set(GROUPS) if groups is None else set(groups), key=lambda name: -GROUPS[name][2])
     cold = [name for name in names if not _stamp_matches(name)]
     compiled_by_workers = False
     if cold:
-        count = (os.cpu_count() or 1) if workers is None else workers
-        if count > 0 and len(cold) > 0 and _cache_writable():
+        count = min(os.cpu_count() or 1, MAX_WORKERS) if workers is None else workers
+        if count > 0 and _cache_writable():
             compiled_by_workers = _compile_in_workers(cold, count, check_cancel, python or _interpreter())
     kernels = compile_groups(names)
     compiled_here = any(kernel.stats.cache_misses for kernel in kernels if hasattr(kernel, "stats"))

@@ -4,10 +4,11 @@ Blender's viewport asks for an image after every change (a light moved, the view
 the scene again at a start resolution (``START_RESOLUTION`` pixels along the longer side: 1/32 of a
 1280 x 720 view), halving the divisor down to 1/8, then 1/4, 1/2 and full, each without anti-aliasing
 (every pixel its centre sample), then the full resolution at the render's own settings: the last image is
-the F12 render of the same view. Where that render anti-aliases by silhouettes, the full-resolution image
-without anti-aliasing is its own pixel centres, handed over before it anti-aliases (``previewed``). Each step is a plain ``render.render`` of the scene with its camera at
+the F12 render of the same view. Each step is a plain ``render.render`` of the scene with its camera at
 that resolution (``scaled_camera``): a pixel of a coarse image is ``divisor`` x ``divisor`` viewport pixels
-and lies where they do, so the viewport draws it scaled up in place.
+and lies where they do, so the viewport draws it scaled up in place. Where the last render anti-aliases by
+silhouettes, the full-resolution image without anti-aliasing is its own pixel centres, handed over before
+it anti-aliases (``previewed``), not a render of its own.
 
 The steps share the scene's camera-independent structures (``prepared.prepare``: the validated scene, the ray
 tracer, the light frames, the edge tree), built once per scene: the renderer keeps them across starts
@@ -271,7 +272,7 @@ class ProgressiveRenderer:
                 step_scene = replace(scene, camera=scaled_camera(scene.camera, divisor))
                 window = step_scene.camera.window
 
-                def show(output, final: bool = False) -> None:
+                def show(output, final: bool = False, divisor: int = divisor, window: tuple = window) -> None:
                     image = ViewportImage(output.combined, divisor, window, final, generation,
                                           time.perf_counter() - started)
                     with self._lock:
