@@ -489,11 +489,12 @@ def _arrange(first_arc, arcs_of, start, end, normal, enter, leave, jump, light_d
     return m, inconsistent
 
 
-def compile_arrangement() -> None:
-    """Compile ``_fans`` and ``_jumps`` (or load them from Numba's cache) on a one-couple input."""
+def compile_arrangement() -> tuple:
+    """Compile ``_fans`` and ``_jumps`` (or load them from Numba's cache) on a one-couple input; returns them."""
     f, i, one = np.zeros((1, 3)), np.zeros(1, np.int64), np.zeros(1)
     _fans(i, i, f, f, f, one, one, i, np.zeros((1, 3, 3)), i, f, i, 16)
     _jumps(i, i, f, f, f, i, f, i, f)
+    return _fans, _jumps
 
 
 def jumps_between(arcs, reference: np.ndarray, region: np.ndarray, target: np.ndarray, n_regions: int

@@ -13,8 +13,9 @@ this 2-core machine (2026-12-07, one process: the arrangement 15.0 s, detection 
   (as before: slower, never wrong), and a cancel kills the workers at once.
 
 A group compiled into the cache (by a worker or by this process) is marked by a stamp file beside Numba's
-cache (``__pycache__``) naming the sources' digest, Numba's version, Python's and the CPU's: a stamp that
-matches means the cache holds the group, so no worker is started. Measured on this 2-core machine, a first
+cache (``__pycache__``) naming Numba's version, Python's and the CPU (``kernel_cache`` deletes the stamps
+with the cache when a source changes): a stamp that matches means the cache holds the group, so no worker
+is started. Measured on this 2-core machine, a first
 render of the floating boxes: 74.6 s before (every group, one process), 27-31 s after (two workers); on
 more cores the wait is bounded by the largest group (the arrangement's ``_fans``, 15 s here).
 """
@@ -93,7 +94,7 @@ def compile_groups(names: Iterable[str]) -> list:
     for name in names:
         module, function, _ = GROUPS[name]
         made = getattr(importlib.import_module(f"{__package__}.{module}"), function)()
-        kernels.extend(made if isinstance(made, (list, tuple)) else [made] if made is not None else [])
+        kernels.extend(made)
     return kernels
 
 
@@ -113,7 +114,7 @@ def compile_kernels(groups: Iterable[str] | None = None, check_cancel: Callable[
         if count > 0 and _cache_writable():
             compiled_by_workers = _compile_in_workers(cold, count, check_cancel, python or _interpreter())
     kernels = compile_groups(names)
-    compiled_here = any(kernel.stats.cache_misses for kernel in kernels if hasattr(kernel, "stats"))
+    compiled_here = any(kernel.stats.cache_misses for kernel in kernels)
     if cold and _cache_writable():  # Numba's cache beside the sources holds them now
         for name in cold:
             _write_stamp(name)
@@ -195,12 +196,12 @@ def _cache_writable() -> bool:
 
 @lru_cache(maxsize=1)
 def _stamp_key() -> str:
-    """What a group's compiled code depends on besides its name: the sources, Numba, Python and the CPU."""
+    """What a group's compiled code depends on besides its name and the sources (a change of those deletes the
+    stamps with the cache: ``kernel_cache``): Numba, Python and the CPU."""
     import llvmlite.binding
     import numba
 
-    from .kernel_cache import sources_digest
-    return "\n".join([sources_digest(_PACKAGE), numba.__version__, sys.version.split()[0],
+    return "\n".join([numba.__version__, sys.version.split()[0],
                       os.environ.get("NUMBA_CPU_NAME") or llvmlite.binding.get_host_cpu_name(),
                       os.environ.get("NUMBA_CPU_FEATURES", "")]) + "\n"
 

@@ -39,7 +39,6 @@ import dataclasses
 import numpy as np
 from numba import njit
 
-from . import arrangement as arrangement_module
 from .arcs import Arcs, _cone_planes, _sort_by_couple
 from .blockers import _union_find
 from .arrangement import jumps_between, visible_fans
@@ -213,9 +212,8 @@ def compile_silhouettes() -> tuple:
     _fan_triangles_kernel(np.zeros(1, np.int64), np.zeros(1, np.int64), three, three, three, three,
                           np.zeros((1, 2)), three, three, np.empty((1, 3, 2)))
     _union_find(np.zeros(1, np.int64), np.zeros(1, np.int64), 1)  # anti-aliasing's surfaces
-    return (_union_find, arrangement_module._fans, arrangement_module._jumps, _cone_planes, _sort_by_couple,
-            _gather_depth_rays, _step_depth_rays, _bounding_cones, _reference_points, _hull_rows,
-            _fan_triangles_kernel)
+    return (_union_find, _cone_planes, _sort_by_couple, _gather_depth_rays, _step_depth_rays, _bounding_cones,
+            _reference_points, _hull_rows, _fan_triangles_kernel)
 
 
 # Bytes of pass 2's per-couple temporaries per vertex of the clipped light (its cone, its directions, the
