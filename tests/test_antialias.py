@@ -215,6 +215,22 @@ def filtered_edge(pixels, width, settings, n=600):
     return np.array(values)
 
 
+def test_compiled_filter_density_is_films():
+    """The pool kernel's one-value filter density (``antialias._filter_density``) is ``film.offset_density``
+    to the last bit: at random points, at the table's knots themselves (where an interval begins), beyond
+    the support on both sides and at its centre, for each filter type and two widths."""
+    from lazyvis_addon.core.film import filter_table
+    generator = np.random.default_rng(7)
+    for filter_type, width in (("BLACKMAN_HARRIS", 1.5), ("BLACKMAN_HARRIS", 0.5), ("GAUSSIAN", 1.5), ("BOX", 1.0)):
+        table = filter_table(width, filter_type)
+        knots = np.ascontiguousarray(table[:len(table) - 1])
+        t = np.concatenate([generator.uniform(-2.5, 3.5, 4000), knots[::37], [-3.0, 0.0, 0.5, 1.0, 4.0]])
+        expected = offset_density(t, width, filter_type)
+        compiled = np.array([antialias_module._filter_density(knots, value) for value in t])
+        assert (expected > 0).sum() > 300  # the support is exercised, not only the zeros outside it
+        np.testing.assert_array_equal(compiled, expected)
+
+
 def test_pooled_samples_estimate_the_filtered_value_with_less_noise():
     """pool_samples weighs every sample under a pixel's filter by the balance heuristic. On a slanted edge
     over a 12 x 12 window, 8 samples per pixel, 64 seeds: its mean is the exactly filtered value (within
