@@ -1207,8 +1207,8 @@ def pool_samples(rgba: np.ndarray, position: np.ndarray, owner: np.ndarray, pixe
     _pool_sums(np.ascontiguousarray(position, np.float64), np.ascontiguousarray(owner, np.int64),
                np.ascontiguousarray(rgba, np.float64), index, drawn, np.array([x0, y0, x1, y1], np.int64), steps,
                np.ascontiguousarray(table[:len(table) - 1]), float(lattice_density), stratum, coverage_key,
-               coverage.stride if coverage is not None else 1, scaled_part, np.ascontiguousarray(pixel_centre, np.float64),
-               totals, surface_totals, moments)
+               coverage.stride if coverage is not None else 1, scaled_part,
+               np.ascontiguousarray(pixel_centre, np.float64), totals, surface_totals, moments)
     plain = totals[:, :4] / np.maximum(totals[:, 4:], 1e-300)
     if coverage is None:
         return plain

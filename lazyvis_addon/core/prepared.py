@@ -19,6 +19,7 @@ from .edge_tree import MeshEdges
 from .emitters import crowded_hulls, hull_faces_in_scene, hull_tables, hulls_as_triangles, nearby_geometry
 from .frame import frame_camera, working_budget_mb
 from .geometry import light_frames
+from .parallel import thread_count
 from .progress import Progress
 from .scene import Scene
 from .settings import Settings
@@ -193,7 +194,7 @@ def prepare(scene: Scene, settings: Settings | None = None, progress: Progress |
         shared = reuse._shared.share()
         reused = ("tracer",) if shared is not None else ()
     if shared is None:
-        shared = _SharedTracer(RayTracer(validated.triangles))
+        shared = _SharedTracer(RayTracer(validated.triangles, threads=thread_count(settings.threads)))
     # Let go of the tracer however preparing ends (a cancel included): its threads would otherwise live
     # until the exception's frames are collected.
     try:

@@ -24,7 +24,7 @@ import numpy as np
 
 from .frame import RenderOutput, blocker_map_frame, frame_camera, global_pixels, silhouette_frame, working_budget_mb
 from .heap import retained_heap
-from .parallel import one_blas_thread
+from .parallel import one_blas_thread, render_threads, thread_count
 from .prepared import PreparedScene, prepare
 from .progress import Progress
 from .scene import Camera, Scene
@@ -51,9 +51,9 @@ def render(scene: Scene, settings: Settings | None = None, progress: Progress | 
     settings = settings or Settings()
     progress = progress or Progress()
     started = time.perf_counter()
-    # The render's threads are its parallelism (``parallel.one_blas_thread``), and its batches reuse the
-    # heap's freed memory (``heap.retained_heap``).
-    with one_blas_thread(), retained_heap(settings.memory_budget_mb):
+    # The render's threads are its parallelism, one pool shared by all its batches (``parallel.render_threads``,
+    # ``parallel.one_blas_thread``), and its batches reuse the heap's freed memory (``heap.retained_heap``).
+    with one_blas_thread(), render_threads(thread_count(settings.threads)), retained_heap(settings.memory_budget_mb):
         return _render(scene, settings, progress, prepared, started)
 
 

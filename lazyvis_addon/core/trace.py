@@ -22,10 +22,11 @@ from __future__ import annotations
 
 import os
 import threading
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
+
+from .parallel import map_batches
 
 DEFAULT_BATCH_SIZE = 262144  # rays per batch handed to one worker thread
 MAX_DEFAULT_THREADS = 8
@@ -95,8 +96,6 @@ class _TracerBase:
         self.batch_size = int(batch_size)
         self.n_rays_cast = 0  # rays passed to intersect / occluded so far (benchmark counter)
         self._counter_lock = threading.Lock()
-        self._executor: ThreadPoolExecutor | None = None
-        self._executor_lock = threading.Lock()
 
     @property
     def triangle_count(self) -> int:
@@ -164,11 +163,8 @@ class _TracerBase:
         return occluded
 
     def close(self) -> None:
-        """Stop the worker threads (they are also stopped when the tracer is garbage collected)."""
-        with self._executor_lock:
-            if self._executor is not None:
-                self._executor.shutdown(wait=True)
-                self._executor = None
+        """Nothing to release: the batches run on the process's shared pool (``parallel.map_batches``). Kept
+        for the context manager and callers that close a tracer."""
 
     def __enter__(self):
         return self
@@ -226,16 +222,9 @@ class _TracerBase:
                 for batch in batches:
                     run(batch)
             else:
-                for _ in self._pool().map(run, batches):  # consuming the results re-raises worker exceptions
-                    pass
+                map_batches(run, batches, self.threads)  # the shared pool; re-raises a batch's exception
         with self._counter_lock:
             self.n_rays_cast += count
-
-    def _pool(self) -> ThreadPoolExecutor:
-        with self._executor_lock:
-            if self._executor is None:
-                self._executor = ThreadPoolExecutor(max_workers=self.threads, thread_name_prefix="lazyvis-trace")
-            return self._executor
 
 
 def _float32_not_above(values: np.ndarray) -> np.ndarray:
