@@ -722,17 +722,21 @@ def _add_moments(slot, weight, offset, rgba, moments):
     slot, weight, offset, rgba, moments = borrowed(slot), borrowed(weight), borrowed(offset), borrowed(rgba), \
         borrowed(moments)
     for i in range(len(slot)):
-        e, w = slot[i], weight[i]
-        dx, dy = offset[i, 0], offset[i, 1]
-        moments[e, 0] += 1.0
-        moments[e, 1] += w * dx
-        moments[e, 2] += w * dy
-        moments[e, 3] += w * dx * dx
-        moments[e, 4] += w * dx * dy
-        moments[e, 5] += w * dy * dy
-        for c in range(4):
-            moments[e, 6 + c] += w * dx * rgba[i, c]
-            moments[e, 10 + c] += w * dy * rgba[i, c]
+        _add_point_moments(moments, slot[i], weight[i], offset[i, 0], offset[i, 1], rgba, i)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _add_point_moments(moments, e, w, dx, dy, rgba, i):
+    """Adds point i's terms (weight ``w``, offset (dx, dy), RGBA ``rgba[i]``) to entry e's moments."""
+    moments[e, 0] += 1.0
+    moments[e, 1] += w * dx
+    moments[e, 2] += w * dy
+    moments[e, 3] += w * dx * dx
+    moments[e, 4] += w * dx * dy
+    moments[e, 5] += w * dy * dy
+    for c in range(4):
+        moments[e, 6 + c] += w * dx * rgba[i, c]
+        moments[e, 10 + c] += w * dy * rgba[i, c]
 
 
 @njit(cache=True, nogil=True)
@@ -859,16 +863,8 @@ def _pool_sums(position, owner, rgba, index, drawn, window, steps, knots, lattic
                 for c in range(6):
                     surface_totals[slot, 5 + c] += weight * scaled_part[s, c]
             if fitted:
-                dx, dy = px - pixel_centre[pixel, 0], py - pixel_centre[pixel, 1]
-                moments[slot, 0] += 1.0
-                moments[slot, 1] += weight * dx
-                moments[slot, 2] += weight * dy
-                moments[slot, 3] += weight * dx * dx
-                moments[slot, 4] += weight * dx * dy
-                moments[slot, 5] += weight * dy * dy
-                for c in range(4):
-                    moments[slot, 6 + c] += weight * dx * rgba[s, c]
-                    moments[slot, 10 + c] += weight * dy * rgba[s, c]
+                _add_point_moments(moments, slot, weight, px - pixel_centre[pixel, 0], py - pixel_centre[pixel, 1],
+                                   rgba, s)
 
 
 def compile_antialias() -> tuple:
