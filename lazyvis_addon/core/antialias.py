@@ -874,7 +874,7 @@ def compile_antialias() -> tuple:
                     np.zeros((1, 2)), np.empty(1))
     table = np.linspace(0.0, 1.0, 8)
     _pool_sums(np.full((1, 2), 0.5), np.zeros(1, np.int64), np.zeros((1, 4)), np.zeros(1, np.int64), np.ones(2),
-               np.array([0, 0, 1, 1], np.int64), np.arange(-2, 2), table, 0.0, np.zeros(1, np.int64),
+               np.array([0, 0, 1, 1], np.int64), np.arange(-2, 2, dtype=np.int64), table, 0.0, np.zeros(1, np.int64),
                np.zeros(1, np.int64), 1, np.zeros((1, 6)), np.full((1, 2), 0.5), np.zeros((1, 5)), np.zeros((1, 11)),
                np.zeros((1, 14)))
     return (_add_moments, _residual_spans, _pool_sums, _filter_density)
